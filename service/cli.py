@@ -1,0 +1,157 @@
+"""The ``impactcell`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+# Later subcommands register themselves here: name -> (add_arguments, run).
+_EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = []
+
+
+def register(add: Callable[[argparse._SubParsersAction], None]) -> None:
+    """Register a function that adds subcommands (each sets ``func`` via ``set_defaults``)."""
+    _EXTRA_COMMANDS.append(add)
+
+
+def _cell_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--theta", type=float, default=0.3, help="mass ratio θ = ρAl/m_o")
+    p.add_argument("--sigma", type=float, default=0.05, help="beam stiffness parameter σ")
+    p.add_argument("--gamma-s", type=float, default=1.0, help="inverse mass frequency γ_s")
+    p.add_argument("--xi", type=float, default=0.05, help="damping ratio ξ")
+    p.add_argument("--xi-b", type=float, default=None, help="beam Rayleigh ratio (default ξ)")
+    p.add_argument("--gap", type=float, default=0.1, help="both clearances g̃1 = g̃2")
+    p.add_argument("--g1", type=float, default=None, help="clearance to stop 1 (overrides --gap)")
+    p.add_argument("--g2", type=float, default=None, help="clearance to stop 2 (overrides --gap)")
+    p.add_argument("--modes", type=int, default=5, help="number of beam modes, 1…30")
+    p.add_argument("--coupling", default="paper", help="paper (Eq. 29) or full")
+    p.add_argument("--method", default="exponential", help="exponential or euler")
+    p.add_argument("--steps-per-period", type=int, default=None, help="time steps per period")
+    p.add_argument("--max-periods", type=int, default=1000, help="period budget")
+
+
+def _params(args: argparse.Namespace, gamma_r: float):
+    from worker.model import CellParams
+
+    g1 = args.gap if args.g1 is None else args.g1
+    g2 = args.gap if args.g2 is None else args.g2
+    return CellParams(
+        theta=args.theta, sigma=args.sigma, gamma_s=args.gamma_s, gamma_r=gamma_r, xi=args.xi,
+        g1=g1, g2=g2, modes=args.modes, coupling=args.coupling, xi_b=args.xi_b,
+    )  # fmt: skip
+
+
+def _settings(args: argparse.Namespace):
+    from worker.simulate import SolverSettings
+
+    return SolverSettings(
+        method=args.method, steps_per_period=args.steps_per_period, max_periods=args.max_periods
+    )
+
+
+def _cmd_point(args: argparse.Namespace) -> int:
+    from worker.simulate import simulate_point
+
+    result = simulate_point(_params(args, args.gamma_r), _settings(args))
+    d = result.as_dict()
+    if args.json:
+        print(json.dumps(d))
+        return 0
+    if result.failed:
+        print(f"failed: {result.reason}")
+        return 0
+    period = f"period-{result.response_period}" if result.converged else "irregular"
+    print(f"transmittance Γ     {result.transmittance_db:.6f} dB")
+    print(f"amplitude A_s       {result.amplitude:.6g}")
+    print(f"θ_eff (harmonic)    {result.theta_eff:.6g}")
+    tm = result.theta_eff_mean
+    print(f"θ_eff (time mean)   {'n/a' if tm is None else f'{tm:.6g}'}")
+    print(f"response            {period} after {result.periods} periods")
+    i1, i2 = result.impacts_per_period
+    print(f"impacts / period    stop 1: {i1:g}, stop 2: {i2:g}")
+    print(f"steps               {result.steps} ({result.contact_steps} with contact)")
+    print(f"wall time           {result.wall_s * 1e3:.2f} ms ({result.method})")
+    return 0
+
+
+def _cmd_spectrum(args: argparse.Namespace) -> int:
+    from worker.simulate import simulate_point
+
+    if args.num < 1:
+        raise ValueError(f"num must be >= 1, got {args.num}")
+    settings = _settings(args)
+    rows = []
+    for g in np.linspace(args.gamma_r_start, args.gamma_r_stop, args.num):
+        r = simulate_point(_params(args, float(g)), settings)
+        rows.append((float(g), r))
+    if args.json:
+        print(json.dumps([{"gamma_r": g, **r.as_dict()} for g, r in rows]))
+        return 0
+    print(f"{'gamma_r':>8}  {'Gamma_dB':>11}  {'theta_eff':>9}  {'period':>6}  {'ms':>7}")
+    for g, r in rows:
+        gam = "failed" if r.failed else f"{r.transmittance_db:11.5f}"
+        th = "" if r.theta_eff is None else f"{r.theta_eff:9.4f}"
+        per = str(r.response_period) if r.converged else "irreg"
+        print(f"{g:8.4f}  {gam:>11}  {th:>9}  {per:>6}  {r.wall_s * 1e3:7.2f}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="impactcell", description="Impacting beam-in-mass metamaterial cell studies."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("point", help="simulate one point")
+    _cell_arguments(p)
+    p.add_argument("--gamma-r", type=float, default=1.0, help="excitation frequency γ_r")
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.set_defaults(func=_cmd_point)
+
+    p = sub.add_parser("spectrum", help="transmittance over a γ_r range")
+    _cell_arguments(p)
+    p.add_argument("--gamma-r-start", type=float, default=0.2)
+    p.add_argument("--gamma-r-stop", type=float, default=6.0)
+    p.add_argument("--num", type=int, default=30)
+    p.add_argument("--json", action="store_true", help="a JSON list on stdout")
+    p.set_defaults(func=_cmd_spectrum)
+
+    for add in _EXTRA_COMMANDS:
+        add(sub)
+    return parser
+
+
+def _load_plugins() -> None:
+    # Subcommands of later layers live in their own modules and register on import.
+    import importlib
+
+    for mod in ("service.cli_study",):
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point: parse, run, map bad input to exit status 2."""
+    _load_plugins()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as exc:
+        print(f"impactcell: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+__all__ = ["build_parser", "main", "math", "register"]
