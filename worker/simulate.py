@@ -13,6 +13,7 @@ import scipy.linalg
 
 from worker import kernels as K
 from worker.model import CellParams, System, assemble
+from worker.observables import theta_eff_harmonic, theta_eff_instantaneous, transmittance_db
 
 SOLVER_VERSION = "1"
 METHODS = ("exponential", "euler")
@@ -383,15 +384,14 @@ def _result(out, params, settings, sys_, wall, spp, hist, xh, history_periods) -
         )  # fmt: skip
     S = complex(out[K.O_S_RE], out[K.O_S_IM])
     Sb = complex(out[K.O_SB_RE], out[K.O_SB_IM])
-    theta = params.theta
-    theta_eff = (sys_.kappa - theta * (Sb / S).real) / (1.0 + theta) if abs(S) > 0 else None
+    theta_eff = theta_eff_harmonic(S, Sb, sys_.kappa, params.theta)
     tm = out[K.O_THETA_MEAN_T]
     theta_mean = out[K.O_THETA_MEAN_SUM] / tm if tm > 0 else None
     mp = max(out[K.O_MEASURED_PERIODS], 1.0)
     return PointResult(
-        transmittance_db=20.0 * math.log10(amp / params.base_scale),
+        transmittance_db=transmittance_db(amp, params.base_scale),
         amplitude=float(amp),
-        theta_eff=None if theta_eff is None else float(theta_eff),
+        theta_eff=theta_eff,
         theta_eff_mean=None if theta_mean is None else float(theta_mean),
         response_period=int(out[K.O_RESPONSE_PERIOD]),
         impacts_per_period=(float(out[K.O_IMPACTS1] / mp), float(out[K.O_IMPACTS2] / mp)),
@@ -411,13 +411,8 @@ def _unroll(hist, xh, out, params, sys_) -> dict[str, np.ndarray]:
     h = hist[order]
     sdot = h[:, K.H_SDOT]
     sbdot = h[:, K.H_SBDOT]
-    thr = 1e-3 * np.max(np.abs(sdot)) if len(sdot) else 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inst = np.where(
-            np.abs(sdot) >= thr,
-            (sys_.kappa - params.theta * sbdot / sdot) / (1.0 + params.theta),
-            np.nan,  # undefined where ṡ ≈ 0 (the ratio is singular); histories only
-        )
+    # NaN marks where Eq. 36 is singular (ṡ ≈ 0); histories only, never a point result.
+    inst = theta_eff_instantaneous(sdot, sbdot, sys_.kappa, params.theta)
     return {
         "tau": h[:, K.H_TAU],
         "s": h[:, K.H_S],
