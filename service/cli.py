@@ -152,6 +152,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run the canonical ``service.cli`` module, not this ``__main__`` copy, so subcommands that
+    # registered on import of ``service.cli`` are in the parser.
+    from service.cli import main as _canonical_main
+
+    sys.exit(_canonical_main())
 
 __all__ = ["build_parser", "main", "math", "register"]

@@ -1,0 +1,203 @@
+"""The runner on a real LocalCluster, resume after SIGKILL, and the run/show CLI.
+
+"Identical" results: every coordinate, every data variable except ``wall_s`` and every global
+attribute except ``created`` are equal (``xr.testing.assert_identical``). ``wall_s`` is a
+measured time and ``created`` a clock reading, so they differ between any two runs; everything
+computed is deterministic and must match exactly, whatever the chunking, the worker or the
+interruption.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import xarray as xr
+
+from service.cli import main
+from service.runner import run_study
+from service.store import StudyStore, open_results
+from service.study import load_study, parse_study
+
+ROOT = Path(__file__).resolve().parents[2]
+SOLVER = {"steps_per_period": 512, "max_periods": 200, "periodicity_tol": 1e-6, "window": 10}
+
+
+def comparable(ds: xr.Dataset) -> xr.Dataset:
+    """The dataset without what legitimately differs between runs (see the module doc)."""
+    out = ds.drop_vars("wall_s")
+    out.attrs = {k: v for k, v in ds.attrs.items() if k != "created"}
+    return out
+
+
+def _study(name: str = "runner", **extra: Any) -> Any:
+    d = {
+        "name": name,
+        "solver": SOLVER,
+        "grid": {
+            "gamma_r": {"start": 0.3, "stop": 4.0, "num": 24},
+            "gap": [0.1, 0.6],
+            "theta": 0.3,
+            "sigma": 0.05,
+            "gamma_s": 1.0,
+        },
+    }
+    d.update(extra)
+    return parse_study(d)
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Any]:
+    from dask.distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
+    )
+    c = Client(cluster)
+    try:
+        yield c
+    finally:
+        c.close()
+        cluster.close()
+
+
+def test_local_cluster_matches_serial(tmp_path: Path, client: Any) -> None:
+    study = _study()
+    seen: list[tuple[int, int]] = []
+    dist = run_study(
+        study,
+        tmp_path / "d",
+        client=client,
+        chunk_size=5,
+        progress=lambda d, t: seen.append((d, t)),
+    )
+    serial = run_study(study, tmp_path / "s", serial=True, chunk_size=study.size)
+    assert dist.points == serial.points == study.size == dist.computed
+    assert seen[0] == (0, study.size) and seen[-1] == (study.size, study.size)
+    a, b = open_results(dist.path), open_results(serial.path)
+    xr.testing.assert_identical(comparable(a), comparable(b))
+    # Chunk files are gone once the results file holds them.
+    assert not list(StudyStore(tmp_path / "d", study).chunk_dir.glob("*.npz"))
+
+
+def test_failed_points_do_not_fail_the_study(tmp_path: Path, client: Any) -> None:
+    # Euler at 256 steps a period is unstable for γ_r = 0.2 (Δτ·ω̃_max > 2), fine for γ_r >= 1.
+    study = parse_study(
+        {
+            "name": "fails",
+            "solver": {"method": "euler", "steps_per_period": 256, "max_periods": 60, "window": 5},
+            "grid": {
+                "gamma_r": [0.2, 1.0, 2.0],
+                "gap": 0.3,
+                "theta": 0.3,
+                "sigma": 0.05,
+                "gamma_s": 1.0,
+            },
+        }  # fmt: skip
+    )
+    s = run_study(study, tmp_path, client=client, chunk_size=2)
+    ds = open_results(s.path)
+    assert s.failed == 1 and bool(ds["failed"].sel(gamma_r=0.2))
+    assert "unstable" in str(ds["reason"].sel(gamma_r=0.2).values)
+    assert not ds["failed"].sel(gamma_r=[1.0, 2.0]).any()
+
+
+def test_resume_computes_only_missing(tmp_path: Path, client: Any) -> None:
+    study = _study("resume")
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    from worker.simulate import simulate_chunk
+
+    solver = study.solver.settings().__dict__
+    for a, b in [(0, 7), (20, 30)]:
+        store.write_chunk(a, b, simulate_chunk(study.points(a, b), solver))
+    s = run_study(study, tmp_path, client=client, chunk_size=8)
+    assert s.computed == study.size - 17
+    ref = run_study(study, tmp_path / "ref", serial=True)
+    xr.testing.assert_identical(
+        comparable(open_results(s.path)), comparable(open_results(ref.path))
+    )
+    again = run_study(study, tmp_path, client=client)
+    assert again.reused and again.computed == 0
+
+
+def test_quick_study_runs(tmp_path: Path, client: Any) -> None:
+    study = load_study(ROOT / "studies" / "quick.yaml")
+    s = run_study(study, tmp_path, client=client)
+    assert s.points == study.size and s.failed == 0
+    ds = open_results(s.path)
+    assert ds["transmittance_db"].notnull().all()
+
+
+def _chunk_files(folder: Path) -> list[Path]:
+    return list(folder.glob("*.npz")) if folder.is_dir() else []
+
+
+def test_sigkill_and_resume(tmp_path: Path) -> None:
+    study_file = tmp_path / "kill.yaml"
+    study_file.write_text(
+        "name: kill\n"
+        "solver: {steps_per_period: 1024, max_periods: 400}\n"
+        "grid: {gamma_r: {start: 0.3, stop: 5.0, num: 60}, gap: [0.1, 0.4, 0.8], theta: 0.3,\n"
+        "       sigma: 0.05, gamma_s: 1.0}\n"
+    )
+    study = load_study(study_file)
+    out = tmp_path / "data"
+    store = StudyStore(out, study)
+    cmd = [sys.executable, "-m", "service.cli", "run", str(study_file), "--out", str(out)]
+    opts = ["--workers", "1", "--chunk-size", "4", "--no-progress", "--json"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        cmd + opts, cwd=ROOT, env=env, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while len(_chunk_files(store.chunk_dir)) < 3:
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            assert time.monotonic() < deadline, "no chunk files appeared"
+            time.sleep(0.02)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        # The embedded cluster's worker processes are in the killed process's group.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert proc.returncode == -signal.SIGKILL
+    assert not store.results_path.exists(), "the study finished before it was killed"
+    done = store.done_mask().sum()
+    assert 0 < done < study.size
+
+    rerun = subprocess.run(
+        cmd + opts, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=True
+    )
+    summary = json.loads(rerun.stdout)
+    assert summary["computed"] == study.size - done
+    resumed = open_results(store.results_path)
+
+    ref = run_study(study, tmp_path / "ref", serial=True)
+    xr.testing.assert_identical(comparable(resumed), comparable(open_results(ref.path)))
+
+
+def test_cli_show_and_bad_study(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    study = _study("cli")
+    s = run_study(study, tmp_path, serial=True)
+    assert main(["show", str(s.path)]) == 0
+    out = capsys.readouterr().out
+    assert study.id in out and "transmittance_db" in out
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\nnope: 1\ngrid: {gamma_r: -1}\n")
+    assert main(["run", str(bad), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "nope: unknown key" in err and "grid.gamma_r" in err and "grid.theta" in err
+    assert main(["show", str(tmp_path / "missing.nc")]) == 2
