@@ -178,6 +178,31 @@ def _periodicity(ring, nring, period_idx, x, tol, nx):
 
 
 @njit(cache=True)
+def _propagate(Phi, E, x, cf, sf, xn, nx):
+    """xn = Φ x + E [cos; sin]: the exact free-flight step."""
+    for i in range(nx):
+        acc = E[i, 0] * cf + E[i, 1] * sf
+        for j in range(nx):
+            acc += Phi[i, j] * x[j]
+        xn[i] = acc
+
+
+@njit(cache=True)
+def _accumulate_harmonics(out, psi, psib, P, x, cf, sf, rot_c, rot_s, nx):
+    """Add e^{-iγτ}·∫ [s; s_b] e^{-iγt} dt over one exact step (impulse P at its start)."""
+    for r in range(2):
+        zr = psib[r].real * P
+        zi = psib[r].imag * P
+        for j in range(nx):
+            zr += psi[r, j].real * x[j]
+            zi += psi[r, j].imag * x[j]
+        zr += psi[r, nx].real * cf + psi[r, nx + 1].real * sf
+        zi += psi[r, nx].imag * cf + psi[r, nx + 1].imag * sf
+        out[O_S_RE + 2 * r] += zr * rot_c - zi * rot_s
+        out[O_S_IM + 2 * r] += zr * rot_s + zi * rot_c
+
+
+@njit(cache=True)
 def _smallest_divisor_period(ring, period_idx, x, tol, nx, p):
     """A p-periodic state found while a slow transient lingers may really be q-periodic, q | p."""
     scale = 0.0
@@ -298,11 +323,7 @@ def simulate_kernel(
                 # Whole coarse step in free flight; keep it unless the tip may come near a stop.
                 cf = cos0 * f_scale
                 sf = sin0 * f_scale
-                for i in range(nx):
-                    acc = E_c[i, 0] * cf + E_c[i, 1] * sf
-                    for j in range(nx):
-                        acc += Phi_c[i, j] * x[j]
-                    xn[i] = acc
+                _propagate(Phi_c, E_c, x, cf, sf, xn, nx)
                 w0 = _dot(W, x, N)
                 wv0 = 0.0
                 w1 = _dot(W, xn, N)
@@ -318,18 +339,8 @@ def simulate_kernel(
                     steps += 1
                     coarse_whole += 1
                     if measuring:
-                        rot_c = cos0  # e^{-iγτ}: τ and the phase differ by whole periods
-                        rot_s = -sin0
-                        for r in range(2):
-                            zr = 0.0
-                            zi = 0.0
-                            for j in range(nx):
-                                zr += psi_c[r, j].real * x[j]
-                                zi += psi_c[r, j].imag * x[j]
-                            zr += psi_c[r, nx].real * cf + psi_c[r, nx + 1].real * sf
-                            zi += psi_c[r, nx].imag * cf + psi_c[r, nx + 1].imag * sf
-                            out[O_S_RE + 2 * r] += zr * rot_c - zi * rot_s
-                            out[O_S_IM + 2 * r] += zr * rot_s + zi * rot_c
+                        # e^{-iγτ}: τ and the phase differ by whole periods
+                        _accumulate_harmonics(out, psi_c, psib_f, 0.0, x, cf, sf, cos0, -sin0, nx)
                     for i in range(nx):
                         x[i] = xn[i]
                     s1 = x[n]
@@ -403,11 +414,7 @@ def simulate_kernel(
                 else:
                     cf = cph * f_scale
                     sf = sph * f_scale
-                    for i in range(nx):
-                        acc = E_f[i, 0] * cf + E_f[i, 1] * sf
-                        for j in range(nx):
-                            acc += Phi_f[i, j] * x[j]
-                        xn[i] = acc
+                    _propagate(Phi_f, E_f, x, cf, sf, xn, nx)
                     wend = _dot(W, xn, N)
                     c1 = g1 - wend
                     c2 = g2 + wend
@@ -418,18 +425,7 @@ def simulate_kernel(
                         for i in range(nx):
                             xn[i] += b_f[i] * P
                     if measuring:
-                        rot_c = cph  # e^{-iγτ}: τ and the phase differ by whole periods
-                        rot_s = -sph
-                        for r in range(2):
-                            zr = psib_f[r].real * P
-                            zi = psib_f[r].imag * P
-                            for j in range(nx):
-                                zr += psi_f[r, j].real * x[j]
-                                zi += psi_f[r, j].imag * x[j]
-                            zr += psi_f[r, nx].real * cf + psi_f[r, nx + 1].real * sf
-                            zi += psi_f[r, nx].imag * cf + psi_f[r, nx + 1].imag * sf
-                            out[O_S_RE + 2 * r] += zr * rot_c - zi * rot_s
-                            out[O_S_IM + 2 * r] += zr * rot_s + zi * rot_c
+                        _accumulate_harmonics(out, psi_f, psib_f, P, x, cf, sf, cph, -sph, nx)
                     if P != 0.0:
                         # The step's trajectory starts after the impulse (Moreau: impulse first).
                         v0 += MinvX[n] * P
