@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Callable, Sequence
 
@@ -158,4 +157,4 @@ if __name__ == "__main__":
 
     sys.exit(_canonical_main())
 
-__all__ = ["build_parser", "main", "math", "register"]
+__all__ = ["build_parser", "main", "register"]

@@ -11,6 +11,7 @@ Validation reports every problem it can find in one go, each with its path in th
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -33,6 +34,7 @@ from pydantic import (
     model_validator,
 )
 
+from worker.physical import PhysicalCell
 from worker.simulate import SOLVER_VERSION, SolverSettings
 
 __all__ = [
@@ -58,21 +60,8 @@ DEFAULT_MAX_POINTS = 2_000_000
 # Canonical axis order (the dataset's dimension order, independent of the file's key order).
 # γ_r is last so that a chunk of consecutive points is a piece of one spectrum.
 MODEL_AXES: tuple[str, ...] = ("gap", "g1", "g2", "theta", "sigma", "gamma_s", "xi", "gamma_r")
-PHYSICAL_FIELDS: tuple[str, ...] = (
-    "length_m",
-    "width_m",
-    "thickness_m",
-    "density_kg_m3",
-    "youngs_modulus_pa",
-    "outer_mass_kg",
-    "spring_n_m",
-    "damping_ratio",
-    "gap_m",
-    "gap1_m",
-    "gap2_m",
-    "base_amplitude_m",
-    "base_acceleration_m_s2",
-)
+# The SI fields are PhysicalCell's own, so the study schema cannot drift from the cell.
+PHYSICAL_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PhysicalCell))
 PHYSICAL_AXES: tuple[str, ...] = (*PHYSICAL_FIELDS, "frequency_hz")
 _POSITIVE = {
     "theta", "sigma", "gamma_s", "gamma_r", "frequency_hz", "length_m", "width_m",
@@ -411,8 +400,6 @@ class Study(_Strict):
             common["xi_b"] = m.xi_b
         out = []
         if self.is_physical:
-            from worker.physical import PhysicalCell
-
             assert self.physical is not None
             base = self.physical.model_dump(exclude_none=True)
             for i in range(n):
@@ -511,8 +498,6 @@ def _grid_problems(
                  f"base_acceleration_m_s2, got {', '.join(excitation) or 'neither'}")
             )  # fmt: skip
         if not out:
-            from worker.physical import PhysicalCell
-
             first = {k: float(axis_values(v)[0]) for k, v in given.items()}
             first.pop("frequency_hz", None)
             try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -465,7 +465,6 @@ __all__ = [
     "SOLVER_VERSION",
     "PointResult",
     "SolverSettings",
-    "asdict",
     "euler_default_steps",
     "failed_result",
     "simulate_chunk",
