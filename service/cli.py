@@ -130,7 +130,7 @@ def _load_plugins() -> None:
     # Subcommands of later layers live in their own modules and register on import.
     import importlib
 
-    for mod in ("service.cli_study",):
+    for mod in ("service.cli_study", "service.cli_service", "service.cli_nightly"):
         try:
             importlib.import_module(mod)
         except ModuleNotFoundError as exc:

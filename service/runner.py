@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from worker.simulate import failed_result, simulate_chunk
 
 __all__ = [
     "DEFAULT_CHUNK_SIZE",
+    "Cancelled",
     "RunSummary",
     "default_chunk_size",
     "run_study",
@@ -38,6 +40,11 @@ _WARM_POINT = {"theta": 0.3, "sigma": 0.05, "gamma_s": 1.0, "gamma_r": 1.0, "g1"
 _WARM_SOLVER = {"steps_per_period": 64, "max_periods": 8, "window": 2}
 
 Progress = Callable[[int, int], None]  # (points done, total points)
+ChunkDone = Callable[[int, int, list[dict[str, Any]]], None]  # (start, stop, records)
+
+
+class Cancelled(Exception):
+    """Raised inside the runner when its ``cancel`` callback says stop."""
 
 
 @dataclass
@@ -55,6 +62,7 @@ class RunSummary:
     workers: int
     chunk_size: int
     reused: bool = False  # the results file already existed
+    cancelled: bool = False  # stopped on request: finished chunks kept, no results file yet
 
 
 def default_chunk_size(points: int, workers: int) -> int:
@@ -79,7 +87,7 @@ def _make_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
         n_workers=n,
         threads_per_worker=1,  # the kernels hold the GIL: parallelism comes from processes
         processes=True,
-        dashboard_address=None,
+        dashboard_address=":0",  # a free port: never clash with a running dask
         silence_logs=40,  # logging.ERROR
     )
     return Client(cluster), cluster
@@ -101,6 +109,8 @@ def run_study(
     serial: bool = False,
     progress: Progress | None = None,
     max_in_flight: int | None = None,
+    cancel: Callable[[], bool] | None = None,
+    on_chunk: ChunkDone | None = None,
 ) -> RunSummary:
     """Run (or resume) a study and collate its results file.
 
@@ -125,6 +135,11 @@ def run_study(
         ``progress(done, total)`` after every chunk (and once at the start).
     max_in_flight : int, optional
         Tasks submitted ahead of completion (default ``4 ×`` worker threads, at least 8).
+    cancel : callable, optional
+        Polled between chunks; when it returns true, queued tasks are cancelled, finished
+        chunks are kept and the run returns with ``cancelled=True`` (no results file).
+    on_chunk : callable, optional
+        ``on_chunk(start, stop, records)`` after each chunk is stored.
 
     Returns
     -------
@@ -167,15 +182,29 @@ def run_study(
             store.write_chunk(start, stop, records, retry=retry)
             kernel_s += sum(r["wall_s"] for r in records)
             done += stop - start
+            if on_chunk:
+                on_chunk(start, stop, records)
             if progress:
                 progress(done, total)
 
-        if serial or not pieces:
-            for start, stop in pieces:
-                finished(start, stop, simulate_chunk(study.points(start, stop), solver), False)
-        else:
-            window = max_in_flight or max(8, 4 * nworkers)
-            _run_distributed(client, study, solver, pieces, finished, window)
+        stop_now = cancel or (lambda: False)
+        try:
+            if serial or not pieces:
+                for start, stop in pieces:
+                    if stop_now():
+                        raise Cancelled
+                    records = simulate_chunk(study.points(start, stop), solver)
+                    finished(start, stop, records, False)
+            else:
+                window = max_in_flight or max(8, 4 * nworkers)
+                _run_distributed(client, study, solver, pieces, finished, window, stop_now)
+        except Cancelled:
+            return RunSummary(
+                study_id=study.id, path=store.results_path, points=total,
+                computed=done - (total - n_missing), failed=0, irregular=0,
+                wall_s=time.perf_counter() - t0, kernel_s=kernel_s,
+                workers=0 if serial else nworkers, chunk_size=chunk, cancelled=True,
+            )  # fmt: skip
     finally:
         if own_client is not None:
             own_client.close()
@@ -205,11 +234,13 @@ def _run_distributed(
     pieces: list[tuple[int, int]],
     finished: Callable[[int, int, list[dict[str, Any]], bool], None],
     max_in_flight: int,
+    stop_now: Callable[[], bool],
 ) -> None:
     from dask.distributed import as_completed
 
     todo = iter(pieces)
     ranges: dict[str, tuple[int, int]] = {}
+    run = uuid.uuid4().hex[:8]  # a resumed run must not reuse keys of a cancelled one
 
     def submit() -> Any:
         try:
@@ -220,7 +251,7 @@ def _run_distributed(
             simulate_chunk,
             study.points(start, stop),
             solver,
-            key=f"impactcell-{study.id}-{start}-{stop}",
+            key=f"impactcell-{study.id}-{start}-{stop}-{run}",
             retries=TASK_RETRIES,
             pure=False,
         )
@@ -229,8 +260,10 @@ def _run_distributed(
 
     # A bounded window of tasks keeps memory flat however large the study is.
     initial = [f for f in (submit() for _ in range(max_in_flight)) if f is not None]
-    queue = as_completed(initial, with_results=False)
+    queue = as_completed(initial, with_results=False, timeout=None)
+    pending = {f.key: f for f in initial}
     for fut in queue:
+        pending.pop(fut.key, None)
         start, stop = ranges.pop(fut.key)
         if fut.status == "finished":
             finished(start, stop, fut.result(), False)
@@ -244,8 +277,13 @@ def _run_distributed(
             rec = failed_result(SolverSettings(**solver), reason)
             finished(start, stop, [dict(rec) for _ in range(stop - start)], True)
         fut.release()
+        if stop_now():
+            # Finished chunks are stored; queued tasks are dropped (running ones end unused).
+            client.cancel(list(pending.values()), force=False)
+            raise Cancelled
         nxt = submit()
         if nxt is not None:
+            pending[nxt.key] = nxt
             queue.add(nxt)
 
 

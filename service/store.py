@@ -39,6 +39,7 @@ from worker.simulate import SOLVER_VERSION
 __all__ = [
     "CHUNK_FIELDS",
     "FILL_FLOAT",
+    "PENDING",
     "StudyStore",
     "VARIABLES",
     "atomic_write",
@@ -49,6 +50,7 @@ __all__ = [
 
 FILL_FLOAT = 9.969209968386869e36  # netCDF's default double fill (NC_FILL_DOUBLE)
 FILL_INT = -1
+PENDING = "pending: not computed yet"  # reason of points a partial dataset does not have yet
 _STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
 
@@ -321,11 +323,40 @@ class StudyStore:
 
     def collect(self) -> dict[str, np.ndarray]:
         """Every point's stored results as flat arrays; raises if any point is missing."""
+        cols, filled = self._gather(strict=True)
+        if not filled.all():
+            n = filled.size
+            raise ValueError(f"{int((~filled).sum())} of {n} points have no results yet")
+        return cols
+
+    def collect_partial(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Results stored so far, and the mask of points that have them.
+
+        Points without results are filled as failed with reason ``pending``. Chunk files that
+        vanish while reading (a run finishing and tidying up) are treated as not there.
+        """
+        cols, filled = self._gather(strict=False)
+        missing = int((~filled).sum())
+        if missing:
+            from worker.simulate import SolverSettings, failed_result
+
+            rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
+            fill = _columns([rec])
+            for name, arr in fill.items():
+                if name not in cols:
+                    dtype = object if arr.dtype.kind == "U" else arr.dtype
+                    cols[name] = np.empty((filled.size, *arr.shape[1:]), dtype=dtype)
+                cols[name][~filled] = arr[0]
+        return cols, filled
+
+    def _gather(self, strict: bool) -> tuple[dict[str, np.ndarray], np.ndarray]:
         n = self.study.size
         filled = np.zeros(n, dtype=bool)
         cols: dict[str, np.ndarray] = {}
         for start, stop, path in self.chunks():
             data = self._load_chunk(path)
+            if data is None and not strict:
+                continue
             if data is None:
                 raise ValueError(f"chunk file {path} cannot be read")
             if filled[start:stop].any():
@@ -337,9 +368,7 @@ class StudyStore:
                     cols[name] = np.empty((n, *a.shape[1:]), dtype=dtype)
                 cols[name][start:stop] = a
             filled[start:stop] = True
-        if not filled.all():
-            raise ValueError(f"{int((~filled).sum())} of {n} points have no results yet")
-        return cols
+        return cols, filled
 
     # ---------------------------------------------------------------- results
 
@@ -387,9 +416,17 @@ def _attrs(name: str) -> dict[str, str]:
 
 
 def results_from_records(
-    study: Study, cols: Mapping[str, np.ndarray], *, created: str | None = None
+    study: Study,
+    cols: Mapping[str, np.ndarray],
+    *,
+    created: str | None = None,
+    computed: np.ndarray | None = None,
 ) -> xr.Dataset:
-    """Collate flat per-point arrays (C order over the study's axes) into a Dataset."""
+    """Collate flat per-point arrays (C order over the study's axes) into a Dataset.
+
+    ``computed`` (a flat mask) marks a partial dataset: it adds a ``pending`` variable and the
+    global attributes ``partial = 1`` and ``points_done``.
+    """
     dims_map = study.dims()
     dims = tuple(dims_map)
     shape = study.shape
@@ -455,6 +492,15 @@ def results_from_records(
             "missing (_FillValue) and reason says why"
         ),
     }
+    if computed is not None:
+        data_vars["pending"] = (
+            dims,
+            ~np.asarray(computed, dtype=bool).reshape(shape),
+            {"units": "1", "long_name": "point not computed yet (partial dataset)"},
+        )
+        attrs["partial"] = np.int8(1)
+        attrs["points_done"] = int(np.sum(computed))
+        attrs["comment"] += "; partial dataset: pending = 1 marks points not computed yet"
     return xr.Dataset(data_vars, coords=coords, attrs=attrs)
 
 
@@ -469,7 +515,8 @@ def encoding(ds: xr.Dataset) -> dict[str, dict[str, Any]]:
     enc: dict[str, dict[str, Any]] = {}
     for name in ds.data_vars:
         var = VARIABLES.get(str(name))
-        kind = var.kind if var else ("str" if ds[name].dtype == object else "float")
+        dt = ds[name].dtype
+        kind = var.kind if var else {"O": "str", "b": "bool"}.get(dt.kind, "float")
         if kind == "str":
             enc[str(name)] = {}  # variable-length strings take no compression filter
         elif kind == "maskint":

@@ -1,0 +1,296 @@
+"""``impactcell serve | submit | status | demo``: the service from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from service import cli
+
+__all__ = ["ServerThread", "add_commands", "find_studies_dir"]
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+
+
+def find_studies_dir() -> Path:
+    """The shipped ``studies/`` folder (repository checkout), else ``./studies``."""
+    here = Path(__file__).resolve().parents[1] / "studies"
+    return here if here.is_dir() else Path("studies").resolve()
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A free TCP port on ``host`` (the OS picks it)."""
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+class ServerThread:
+    """Run the service with uvicorn in a background thread (demo, tests)."""
+
+    def __init__(self, settings: Any, *, log_level: str = "warning") -> None:
+        import uvicorn
+
+        from service.app import create_app
+
+        self.settings = settings
+        self.port = settings.port or free_port(settings.host)
+        config = uvicorn.Config(
+            create_app(settings), host=settings.host, port=self.port, log_level=log_level,
+            lifespan="on",
+        )  # fmt: skip
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, name="impactcell-api", daemon=True)
+
+    @property
+    def url(self) -> str:
+        """Base URL of the running server."""
+        return f"http://{self.settings.host}:{self.port}"
+
+    def start(self, timeout: float = 60.0) -> ServerThread:
+        """Start and wait until it accepts requests."""
+        self.thread.start()
+        t0 = time.monotonic()
+        while not self.server.started:
+            if not self.thread.is_alive():
+                raise RuntimeError("the service did not start (see the log above)")
+            if time.monotonic() - t0 > timeout:
+                raise RuntimeError(f"the service did not start within {timeout:g} s")
+            time.sleep(0.05)
+        return self
+
+    def stop(self) -> None:
+        """Shut down gracefully (the runner finishes its chunks in flight)."""
+        self.server.should_exit = True
+        self.thread.join(120)
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    from service.config import Settings
+
+    given = {
+        k: v
+        for k, v in {
+            "host": args.host, "port": args.port, "data_dir": args.data_dir,
+            "scheduler": args.scheduler, "database_url": args.database_url,
+            "workers": args.workers,
+        }.items()
+        if v is not None
+    }  # fmt: skip
+    try:
+        return Settings(**given)
+    except Exception as exc:  # pydantic's ValidationError: name the option and the value
+        raise ValueError(str(exc)) from None
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.app import create_app
+
+    settings = _settings(args)
+    print(
+        f"impactcell service on http://{settings.host}:{settings.port} "
+        f"(data {settings.data_dir}, catalogue {_redact(settings.catalogue_url())}, "
+        f"cluster {settings.scheduler or 'embedded LocalCluster'}, "
+        f"auth {'on' if settings.api_token else 'off'})",
+        file=sys.stderr,
+    )
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port,
+                log_level=args.log_level)  # fmt: skip
+    return 0
+
+
+def _redact(url: str) -> str:
+    # Never print a database password.
+    if "@" in url and "://" in url:
+        scheme, rest = url.split("://", 1)
+        return f"{scheme}://***@{rest.rsplit('@', 1)[1]}"
+    return url
+
+
+def _client(args: argparse.Namespace) -> Any:
+    from service.client import Client
+
+    return Client(args.url, token=args.token)
+
+
+def _cmd_submit(args: argparse.Namespace) -> int:
+    from service.client import ClientError, StudyFailed
+
+    with _client(args) as c:
+        try:
+            rec = c.submit(args.study)
+            print(f"{rec['id']}  {rec['name']}  {rec['status']}  {rec['points_total']:,} points")
+            if args.wait:
+                rec = c.wait(rec["id"], progress=not args.no_progress)
+                print(f"{rec['id']}  finished in {rec['wall_s'] or 0:.1f} s, "
+                      f"{rec['points_failed']} failed")  # fmt: skip
+        except StudyFailed as exc:
+            print(f"impactcell: {exc}", file=sys.stderr)
+            return 1
+        except ClientError as exc:
+            _print_problems(exc)
+            return 2
+    return 0
+
+
+def _print_problems(exc: Any) -> None:
+    print(f"impactcell: error: {exc.message}", file=sys.stderr)
+    for p in exc.problems or []:
+        print(f"  {p.get('path')}: {p.get('message')}", file=sys.stderr)
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    from service.client import ClientError
+
+    with _client(args) as c:
+        try:
+            recs = [c.get(args.id)] if args.id else c.list(limit=args.limit)
+        except ClientError as exc:
+            _print_problems(exc)
+            return 2
+    if args.json:
+        print(json.dumps(recs[0] if args.id else recs))
+        return 0
+    for r in recs:
+        pct = 100.0 * r["progress"]
+        print(f"{r['id']}  {r['status']:<9}  {pct:5.1f}%  {r['points_done']:>9,}/"
+              f"{r['points_total']:<9,}  failed {r['points_failed']:<6,} {r['name']}")  # fmt: skip
+        if args.id:
+            for k in ("submitted_at", "started_at", "finished_at", "wall_s", "error"):
+                print(f"  {k:<13} {r[k]}")
+            for f in r["failures"][:5]:
+                print(f"  failed point {f['coords']}: {f['reason']}")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from service.client import Client
+    from service.config import Settings
+
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    study = (
+        Path(args.study)
+        if args.study
+        else find_studies_dir() / ("paper-fig5-gaps.yaml" if args.full else "demo-fig5.yaml")
+    )
+    if not study.is_file():
+        raise ValueError(f"demo study file not found: {study}")
+    settings = Settings(host="127.0.0.1", port=0, data_dir=out / "data", api_token=None,
+                        workers=args.workers)  # fmt: skip
+    t0 = time.perf_counter()
+    server = ServerThread(settings).start()
+    print(f"service on {server.url} (embedded LocalCluster), data in {settings.data_dir}",
+          file=sys.stderr)  # fmt: skip
+    try:
+        with Client(server.url) as c:
+            rec = c.submit(study)
+            print(f"submitted {study.name}: {rec['points_total']:,} points, id {rec['id']}",
+                  file=sys.stderr)  # fmt: skip
+            rec = c.wait(rec["id"], progress=not args.no_progress)
+            ds = c.dataset(rec["id"])
+            nc = out / f"{rec['name']}.nc"
+            ds.to_netcdf(nc, engine="netcdf4", encoding=_encoding(ds))
+            sel = _demo_selection(ds, "gamma_r", "gap")
+            gaps = c.bandgap_map(rec["id"], x="gamma_r", y="gap", nearest=True, **sel)
+            png = out / "bandgap.png"
+            png.write_bytes(c.plot(rec["id"], "bandgap", x="gamma_r", y="gap", **sel))
+            (out / "transmittance.png").write_bytes(
+                c.plot(rec["id"], "transmittance", x="gamma_r", hue="gap", **sel)
+            )
+            edges = json.loads(gaps.attrs["edges"])
+            (out / "bandgap.json").write_text(json.dumps(edges, indent=1), encoding="utf-8")
+    finally:
+        server.stop()
+    print(f"{rec['points_total']:,} points in {time.perf_counter() - t0:.1f} s "
+          f"({rec['points_failed']} failed, {rec['points_irregular']} irregular)")  # fmt: skip
+    for band in edges:
+        spans = ", ".join(f"{a:.3g}–{b:.3g}" for a, b in band["bands"]) or "none"
+        print(f"  gap {band['y']:g}: Γ < 0 dB for γ_r in {spans}")
+    print(f"wrote {nc.name}, bandgap.png, transmittance.png, bandgap.json to")
+    print(out)
+    return 0
+
+
+def _demo_selection(ds: Any, x: str, y: str) -> dict[str, float]:
+    # The map is Γ over γ_r × gap; other axes are taken at a representative value (θ = 0.3).
+    sel = {}
+    for d in ds.dims:
+        if d in (x, y, "stop") or ds.sizes[d] == 1:
+            continue
+        vals = ds[d].values
+        sel[str(d)] = float(0.3 if d == "theta" and (abs(vals - 0.3) < 1e-9).any() else vals[0])
+    return sel
+
+
+def _encoding(ds: Any) -> dict[str, Any]:
+    from service.store import encoding
+
+    return encoding(ds)
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``serve``, ``submit``, ``status`` and ``demo``."""
+    p = sub.add_parser("serve", help="run the REST service (uvicorn)")
+    p.add_argument("--host", default=None, help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=None, help="port (default 8000)")
+    p.add_argument("--data-dir", default=None, help="data folder (default ./data)")
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        help="dask scheduler tcp://host:port (default: embedded LocalCluster)",
+    )
+    p.add_argument(
+        "--database-url",
+        default=None,
+        help="catalogue SQLAlchemy URL (default: SQLite in the data dir)",
+    )
+    p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
+    p.add_argument(
+        "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
+    )
+    p.set_defaults(func=_cmd_serve)  # fmt: skip
+
+    url_help = "service URL (default $IMPACTCELL_URL or http://127.0.0.1:8000)"
+    default_url = os.environ.get("IMPACTCELL_URL", DEFAULT_URL)
+    p = sub.add_parser("submit", help="submit a study file to the service")
+    p.add_argument("study", help="study file (.yaml, .yml or .json)")
+    p.add_argument("--url", default=default_url, help=url_help)
+    p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
+    p.add_argument("--wait", action="store_true", help="wait until it finishes (progress bar)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar with --wait")
+    p.set_defaults(func=_cmd_submit)
+
+    p = sub.add_parser("status", help="status of one study, or the latest studies")
+    p.add_argument("id", nargs="?", default=None, help="study id (default: list studies)")
+    p.add_argument("--url", default=default_url, help=url_help)
+    p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
+    p.add_argument("--limit", type=int, default=20, help="studies to list")
+    p.add_argument("--json", action="store_true", help="JSON output")
+    p.set_defaults(func=_cmd_status)
+
+    p = sub.add_parser(
+        "demo", help="start the service in-process, run the Figure-5 study, write the bandgap map"
+    )
+    p.add_argument("--out", default="impactcell-demo", help="output folder")
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help="the full paper-fig5-gaps study (5,820 points) instead of the demo cut",
+    )
+    p.add_argument("--study", default=None, help="another study file")
+    p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_demo)  # fmt: skip
+
+
+cli.register(add_commands)

@@ -1,0 +1,49 @@
+"""Service settings: one pydantic-settings object, from ``IMPACTCELL_*`` variables and the CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["Settings", "DEFAULT_PORT"]
+
+DEFAULT_PORT = 8000
+
+
+class Settings(BaseSettings):
+    """Everything the service reads from its environment (prefix ``IMPACTCELL_``).
+
+    Command-line options of ``impactcell serve`` override these.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="IMPACTCELL_", extra="ignore")
+
+    host: str = "127.0.0.1"
+    port: int = Field(DEFAULT_PORT, ge=0, le=65535)
+    data_dir: Path = Path("data")
+    # Any SQLAlchemy URL; default: a SQLite file in the data dir.
+    database_url: str | None = None
+    # tcp://host:port of a dask scheduler; default: an embedded LocalCluster.
+    scheduler: str | None = None
+    workers: int | None = Field(None, ge=1, description="processes of the embedded cluster")
+    # When set, every route except /health needs "Authorization: Bearer <token>".
+    api_token: str | None = None
+    max_body_bytes: int = Field(1_000_000, ge=1024)
+    max_points: int | None = Field(None, ge=1)
+    # Cron expression (5 fields) for the nightly regression suite; unset = no schedule.
+    nightly_cron: str | None = None
+    nightly_dir: Path | None = None
+
+    @field_validator("api_token", "database_url", "scheduler", "nightly_cron", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, v: object) -> object:
+        # compose files pass "${VAR:-}": an empty string means "not set", not "token ''".
+        return None if isinstance(v, str) and not v.strip() else v
+
+    def catalogue_url(self) -> str:
+        """The catalogue's SQLAlchemy URL (a SQLite file in the data dir by default)."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'catalogue.sqlite').resolve()}"

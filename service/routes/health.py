@@ -1,0 +1,30 @@
+"""``/health``: liveness, versions, queue counts and the latest nightly result (no auth)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from service.catalogue import STATUSES
+from service.routes.deps import CatalogueDep, SettingsDep
+from service.schemas import Health
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/health", response_model=Health)
+def health(settings: SettingsDep, catalogue: CatalogueDep) -> dict[str, Any]:
+    """Service is up; counts of studies by status; the latest nightly regression result."""
+    from service.store import _package_version
+    from worker.simulate import SOLVER_VERSION
+
+    counts = {s: catalogue.list_studies(status=s, limit=1)[1] for s in STATUSES}
+    return {
+        "status": "ok",
+        "version": _package_version(),
+        "solver_version": SOLVER_VERSION,
+        "studies": counts,
+        "nightly_cron": settings.nightly_cron,
+        "nightly": catalogue.latest_regression(),
+    }

@@ -1,0 +1,324 @@
+"""Results of a study: the NetCDF file, JSON slices, bandgap maps, plots and time series."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import threading
+from collections import OrderedDict
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import xarray as xr
+from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi.responses import FileResponse, Response
+from starlette.background import BackgroundTask
+
+from service.analysis import AnalysisError, bandgap_json, bandgap_map, select, slice_json
+from service.catalogue import Catalogue
+from service.routes.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
+from service.schemas import ErrorOut
+from service.store import StudyStore, encoding, open_results, results_from_records
+from service.study import Study, parse_study
+
+router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
+
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorOut, "description": "missing or wrong bearer token"},
+    404: {"model": ErrorOut, "description": "no such study"},
+    422: {"model": ErrorOut, "description": "bad selection (names the field and the value)"},
+}
+# Query parameters with a meaning of their own; every other one selects a coordinate value.
+_RESERVED = {"variable", "nearest", "x", "y", "threshold_db", "hue", "periods", "format"}
+_NETCDF = "application/x-netcdf"
+_MAX_HISTORY_PERIODS = 50
+
+
+class _Cache:
+    """A few opened results files, keyed by path and modification time."""
+
+    def __init__(self, size: int = 8) -> None:
+        self._items: OrderedDict[tuple[str, int], xr.Dataset] = OrderedDict()
+        self._lock = threading.Lock()
+        self._size = size
+
+    def get(self, path: Path) -> xr.Dataset:
+        key = (str(path), path.stat().st_mtime_ns)
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
+        ds = open_results(path)
+        with self._lock:
+            self._items[key] = ds
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+        return ds
+
+
+_cache = _Cache()
+
+
+def _study(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study]:
+    rec = study_or_404(catalogue, study_id)
+    return rec, parse_study(rec["definition"], max_points=max(rec["points_total"], 1))
+
+
+def load_dataset(settings: Any, catalogue: Catalogue, study_id: str) -> tuple[xr.Dataset, bool]:
+    """The study's dataset and whether it is partial (from finished chunks only)."""
+    rec, study = _study(catalogue, study_id)
+    store = StudyStore(settings.data_dir, study)
+    if rec["status"] == "finished" and store.results_path.is_file():
+        return _cache.get(store.results_path), False
+    if store.results_path.is_file() and not store.has_retry_chunks():
+        return _cache.get(store.results_path), False
+    cols, done = store.collect_partial()
+    return results_from_records(study, cols, computed=done), True
+
+
+def _coords(request: Request) -> dict[str, str]:
+    return {k: v for k, v in request.query_params.items() if k not in _RESERVED}
+
+
+def _json(payload: Any) -> Response:
+    # allow_nan=False: a NaN that slipped through is a bug, never a result sent to a client.
+    return Response(json.dumps(payload, allow_nan=False), media_type="application/json")
+
+
+@router.get(
+    "/dataset",
+    responses={
+        **_ERRORS,
+        200: {"content": {_NETCDF: {}}, "description": "the NetCDF4 results file"},
+    },
+    response_class=Response,
+)
+def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -> Response:
+    """The results as NetCDF; for unfinished studies, from finished chunks (``partial = 1``)."""
+    ds, partial = load_dataset(settings, catalogue, study_id)
+    headers = {"X-Impactcell-Partial": "1" if partial else "0"}
+    name = f"{study_id}{'-partial' if partial else ''}.nc"
+    if not partial:
+        rec, study = _study(catalogue, study_id)
+        path = StudyStore(settings.data_dir, study).results_path
+        return FileResponse(path, media_type=_NETCDF, filename=name, headers=headers)
+    fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-partial-")
+    os.close(fd)
+    ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding(ds))
+    return FileResponse(
+        tmp, media_type=_NETCDF, filename=name, headers=headers,
+        background=BackgroundTask(os.unlink, tmp),
+    )  # fmt: skip
+
+
+@router.get("/data", responses=_ERRORS)
+def data(
+    request: Request,
+    study_id: StudyId,
+    settings: SettingsDep,
+    catalogue: CatalogueDep,
+    variable: Annotated[str, Query(max_length=64)] = "transmittance_db",
+    nearest: bool = False,
+) -> Response:
+    """A JSON slice of one variable; other query parameters select coordinate values."""
+    ds, partial = load_dataset(settings, catalogue, study_id)
+    try:
+        da = select(ds, variable, _coords(request), nearest=nearest)
+        out = slice_json(da)
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
+    out["partial"] = partial
+    return _json(out)
+
+
+@router.get("/bandgap", responses=_ERRORS)
+def bandgap(
+    request: Request,
+    study_id: StudyId,
+    settings: SettingsDep,
+    catalogue: CatalogueDep,
+    x: Annotated[str, Query(max_length=64)] = "gamma_r",
+    y: Annotated[str | None, Query(max_length=64)] = None,
+    threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
+    nearest: bool = False,
+) -> Response:
+    """The bandgap map: Γ over x × y, where Γ < threshold, and the band edges in x per y."""
+    ds, partial = load_dataset(settings, catalogue, study_id)
+    try:
+        m = bandgap_map(ds, x, y, threshold_db=threshold_db, sel=_coords(request),
+                        nearest=nearest)  # fmt: skip
+        out = bandgap_json(m)
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
+    out["partial"] = partial
+    return _json(out)
+
+
+@router.get(
+    "/plots/{kind}.png",
+    responses={**_ERRORS, 200: {"content": {"image/png": {}}, "description": "a PNG figure"}},
+    response_class=Response,
+)
+def plot(
+    request: Request,
+    study_id: StudyId,
+    kind: Literal["transmittance", "bandgap", "effective-mass"],
+    settings: SettingsDep,
+    catalogue: CatalogueDep,
+    x: Annotated[str | None, Query(max_length=64)] = None,
+    y: Annotated[str | None, Query(max_length=64)] = None,
+    hue: Annotated[str | None, Query(max_length=64)] = None,
+    threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
+    nearest: bool = False,
+) -> Response:
+    """A figure: transmittance (Fig. 5a style), bandgap map, or effective mass (Fig. 6)."""
+    from service import plots
+
+    ds, _ = load_dataset(settings, catalogue, study_id)
+    sel = _coords(request)
+    xdim = x or ("frequency_hz" if "frequency_hz" in ds.dims else "gamma_r")
+    try:
+        if kind == "transmittance":
+            png = plots.transmittance_png(ds, sel, x=xdim, hue=hue, nearest=nearest)
+        elif kind == "effective-mass":
+            png = plots.effective_mass_png(ds, sel, x=xdim, nearest=nearest)
+        else:
+            ydim = y or _default_y(ds, xdim)
+            m = bandgap_map(ds, xdim, ydim, threshold_db=threshold_db, sel=sel, nearest=nearest)
+            png = plots.bandgap_png(m)
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
+    return Response(png, media_type="image/png")
+
+
+def _default_y(ds: xr.Dataset, x: str) -> str | None:
+    for name in ("gap", "g1", "g2", "theta", "sigma", "gamma_s", "xi"):
+        if name != x and name in ds.dims and ds.sizes[name] > 1:
+            return name
+    others = [d for d in ds.dims if d != x and d != "stop" and ds.sizes[d] > 1]
+    return str(others[0]) if others else None
+
+
+@router.get(
+    "/timeseries",
+    responses={
+        **_ERRORS,
+        200: {"content": {"application/json": {}, _NETCDF: {}}, "description": "histories"},
+    },
+)
+def timeseries(
+    request: Request,
+    study_id: StudyId,
+    catalogue: CatalogueDep,
+    periods: Annotated[int, Query(ge=1, le=_MAX_HISTORY_PERIODS)] = 5,
+    format: Literal["json", "netcdf"] = "json",  # noqa: A002 - the query parameter's name
+    nearest: bool = False,
+) -> Response:
+    """Recompute one point with time histories on (never stored); select it by coordinates."""
+    from worker.model import CellParams
+    from worker.simulate import POINT_KEYS, simulate_point
+
+    rec, study = _study(catalogue, study_id)
+    index, coords = _point_index(study, _coords(request), nearest)
+    pt = study.points(index, index + 1)[0]
+    try:
+        params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
+        r = simulate_point(params, study.solver.settings(), history_periods=periods)
+    except ValueError as exc:
+        raise HTTPException(422, f"point {coords} cannot be simulated: {exc}") from None
+    hist = r.history or {}
+    scalars = {k: v for k, v in r.as_dict().items()}
+    if format == "netcdf":
+        return _history_netcdf(study_id, coords, hist, scalars)
+    series = {
+        k: [None if not math.isfinite(x) else float(x) for x in np.asarray(v).ravel()]
+        for k, v in hist.items()
+        if k != "state"
+    }
+    return _json({"study_id": study_id, "coords": coords, "result": _clean(scalars),
+                  "periods": periods, "series": series})  # fmt: skip
+
+
+def _clean(d: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            v = None
+        out[k] = v
+    return out
+
+
+def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int, dict[str, float]]:
+    dims = study.dims()
+    unknown = sorted(set(sel) - set(dims))
+    if unknown:
+        raise HTTPException(
+            422, f"unknown coordinate {unknown[0]!r}; the study's axes are {', '.join(dims)}"
+        )
+    idx: list[int] = []
+    coords: dict[str, float] = {}
+    for name, values in dims.items():
+        if name not in sel:
+            if values.size == 1:
+                idx.append(0)
+                coords[name] = float(values[0])
+                continue
+            raise HTTPException(
+                422, f"{name} must be given to pick one point; values are "
+                f"{_show(values)}"
+            )  # fmt: skip
+        try:
+            v = float(sel[name])
+        except ValueError:
+            raise HTTPException(422, f"{name} must be a number, got {sel[name]!r}") from None
+        d = np.abs(values - v)
+        i = int(np.argmin(d))
+        if not nearest and d[i] > 1e-9 * max(1.0, abs(v)):
+            raise HTTPException(
+                422, f"{name}={v:g} is not a coordinate value; values are {_show(values)} "
+                "(use nearest=true)"
+            )  # fmt: skip
+        idx.append(i)
+        coords[name] = float(values[i])
+    flat = int(np.ravel_multi_index(tuple(idx), tuple(v.size for v in dims.values())))
+    return flat, coords
+
+
+def _show(values: np.ndarray) -> str:
+    if values.size <= 8:
+        return ", ".join(f"{x:g}" for x in values)
+    return f"{values.size} values from {values.min():g} to {values.max():g}"
+
+
+def _history_netcdf(
+    study_id: str, coords: dict[str, float], hist: dict[str, np.ndarray], result: dict[str, Any]
+) -> Response:
+    units = {"tau": "1", "s": "1", "w_tip": "1", "s_b": "1", "s_dot": "1", "s_b_dot": "1",
+             "theta_eff": "1", "impulse1": "1", "impulse2": "1"}  # fmt: skip
+    tau = np.asarray(hist.get("tau", np.zeros(0)))
+    data_vars = {
+        k: ("time", np.asarray(v), {"units": units.get(k, "1"), "long_name": k})
+        for k, v in hist.items()
+        if k not in ("tau", "state")
+    }
+    ds = xr.Dataset(
+        data_vars,
+        coords={"time": ("time", tau, {"units": "1", "long_name": "non-dimensional time tau"})},
+        attrs={
+            "study_id": study_id,
+            "point": json.dumps(coords),
+            "result": json.dumps(_clean(result), default=str),
+        },  # fmt: skip
+    )
+    enc = {k: {"_FillValue": 9.969209968386869e36, "zlib": True} for k in data_vars}
+    fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-ts-")
+    os.close(fd)
+    ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)
+    return FileResponse(tmp, media_type=_NETCDF, filename=f"{study_id}-timeseries.nc",
+                        background=BackgroundTask(os.unlink, tmp))  # fmt: skip
+
+
+__all__ = ["load_dataset", "router"]
