@@ -114,7 +114,9 @@ class LeaseRow(_Base):
 
 
 def _aware(t: dt.datetime | None) -> dt.datetime | None:
-    return None if t is None or t.tzinfo else t.replace(tzinfo=dt.UTC)
+    if t is None or t.tzinfo is not None:
+        return t
+    return t.replace(tzinfo=dt.UTC)  # SQLite hands back naive datetimes (stored as UTC)
 
 
 def _study_dict(r: StudyRow) -> dict[str, Any]:

@@ -29,7 +29,7 @@ def _cell_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--g2", type=float, default=None, help="clearance to stop 2 (overrides --gap)")
     p.add_argument("--modes", type=int, default=5, help="number of beam modes, 1…30")
     p.add_argument("--coupling", default="paper", help="paper (Eq. 29) or full")
-    p.add_argument("--method", default="exponential", help="exponential or euler")
+    p.add_argument("--method", default="exponential", help="exponential, euler or event")
     p.add_argument("--steps-per-period", type=int, default=None, help="time steps per period")
     p.add_argument("--max-periods", type=int, default=1000, help="period budget")
 

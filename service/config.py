@@ -7,9 +7,22 @@ from pathlib import Path
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["Settings", "DEFAULT_PORT"]
+__all__ = ["DEFAULT_PORT", "Settings", "validate_cron"]
 
 DEFAULT_PORT = 8000
+
+
+def validate_cron(expr: str) -> str:
+    """A standard 5-field cron expression (minute hour day month weekday), normalised."""
+    from croniter import croniter
+
+    text = " ".join(str(expr).split())
+    if len(text.split(" ")) != 5 or not croniter.is_valid(text):
+        raise ValueError(
+            f"nightly_cron must be a 5-field cron expression (minute hour day-of-month month "
+            f"day-of-week), e.g. '0 2 * * *'; got {expr!r}"
+        )
+    return text
 
 
 class Settings(BaseSettings):
@@ -41,6 +54,13 @@ class Settings(BaseSettings):
     def _empty_is_unset(cls, v: object) -> object:
         # compose files pass "${VAR:-}": an empty string means "not set", not "token ''".
         return None if isinstance(v, str) and not v.strip() else v
+
+    @field_validator("nightly_cron")
+    @classmethod
+    def _cron(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        return validate_cron(v)
 
     def catalogue_url(self) -> str:
         """The catalogue's SQLAlchemy URL (a SQLite file in the data dir by default)."""
