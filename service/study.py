@@ -274,7 +274,7 @@ class ModelSpec(_Strict):
 class SolverSpec(_Strict):
     """How every point is integrated and measured (``worker.simulate.SolverSettings``)."""
 
-    method: Literal["exponential", "euler"] = "exponential"
+    method: Literal["exponential", "euler", "event"] = "exponential"
     steps_per_period: Integer | None = None
     coarse_steps: Integer = 64
     max_periods: Integer = 1000

@@ -16,7 +16,7 @@ from worker.model import CellParams, System, assemble
 from worker.observables import theta_eff_harmonic, theta_eff_instantaneous, transmittance_db
 
 SOLVER_VERSION = "1"
-METHODS = ("exponential", "euler")
+METHODS = ("exponential", "euler", "event")
 DEFAULT_EXP_STEPS = 2048
 DEFAULT_COARSE_STEPS = 64
 DEFAULT_EULER_STEPS = 1024
@@ -37,8 +37,10 @@ class SolverSettings:
 
     Parameters
     ----------
-    method : {"exponential", "euler"}
-        Exact propagator with impulses (default) or the paper's semi-implicit Euler scheme.
+    method : {"exponential", "euler", "event"}
+        Exact propagator with impulses (default), the paper's semi-implicit Euler scheme, or
+        the event-driven reference solver (``worker/event.py``; ``steps_per_period`` is then
+        its sub-grid of event brackets, default 64).
     steps_per_period : int or None
         Time steps per excitation period; for ``exponential`` the resolution used near the
         stops (free flight takes whole coarse steps, exactly). ``None`` picks a default:
@@ -323,6 +325,13 @@ def simulate_point(
     """
     settings = settings or SolverSettings()
     warm_up()
+    if settings.method == "event":
+        from worker.event import simulate_event
+
+        return simulate_event(
+            params, settings, history_periods=history_periods, initial_state=initial_state,
+            forcing=forcing,
+        )  # fmt: skip
     sys_ = assemble(params)
     prep = _prepare(sys_, settings)
     nx = 2 * sys_.ndof

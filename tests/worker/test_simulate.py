@@ -226,7 +226,7 @@ def test_chunk_reports_bad_points_instead_of_raising():
 @pytest.mark.parametrize(
     ("kw", "message"),
     [
-        ({"method": "rk4"}, "method must be one of exponential, euler, got 'rk4'"),
+        ({"method": "rk4"}, "method must be one of exponential, euler, event, got 'rk4'"),
         ({"steps_per_period": 2}, "steps_per_period must be an integer in 4"),
         ({"max_periods": 10, "window": 10}, "window must be < max_periods"),
         ({"periodicity_tol": 0.0}, "periodicity_tol must be in"),
