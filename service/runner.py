@@ -70,10 +70,9 @@ def default_chunk_size(points: int, workers: int) -> int:
     return max(1, min(DEFAULT_CHUNK_SIZE, math.ceil(points / max(1, 4 * workers))))
 
 
-def warm_up(client: Any) -> None:
-    """Compile/load the numba kernels in every worker before timing anything."""
-    client.run(simulate_chunk, [_WARM_POINT], _WARM_SOLVER)
-    client.run(simulate_chunk, [_WARM_POINT], {**_WARM_SOLVER, "method": "euler"})
+def warm_up(client: Any, method: str = "exponential") -> None:
+    """Compile/load a method's numba kernels in every worker before timing anything."""
+    client.run(simulate_chunk, [_WARM_POINT], {**_WARM_SOLVER, "method": method})
 
 
 def _make_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
@@ -169,7 +168,7 @@ def run_study(
             if client is None:
                 own_client, own_cluster = _make_client(scheduler, workers)
                 client = own_client
-            warm_up(client)
+            warm_up(client, study.solver.method)
             nworkers = _nthreads(client)
         if chunk_size is None:
             chunk = default_chunk_size(n_missing, nworkers)

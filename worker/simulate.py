@@ -17,6 +17,7 @@ from worker.observables import theta_eff_harmonic, theta_eff_instantaneous, tran
 
 SOLVER_VERSION = "1"
 METHODS = ("exponential", "euler", "event")
+LCP_SOLVERS = ("closed", "lemke")
 DEFAULT_EXP_STEPS = 2048
 DEFAULT_COARSE_STEPS = 64
 DEFAULT_EULER_STEPS = 1024
@@ -63,6 +64,10 @@ class SolverSettings:
         up to round-off; switch off to compare).
     early_stop : bool
         Stop once periodic (measure p more periods); off runs the whole budget.
+    lcp : {"closed", "lemke"}
+        ``euler`` only: the two-stop contact LCP of each step in closed form (default) or by
+        the compiled Lemke solver of ``worker/lcp.py``, as the paper does (same solution; a
+        cost comparison).
     """
 
     method: str = "exponential"
@@ -74,6 +79,7 @@ class SolverSettings:
     near_margin: float = 0.1
     adaptive: bool = True
     early_stop: bool = True
+    lcp: str = "closed"
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -98,6 +104,8 @@ class SolverSettings:
         tol = self.periodicity_tol
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 < tol < 1.0:
             raise ValueError(f"periodicity_tol must be in (0, 1), got {tol!r}")
+        if self.lcp not in LCP_SOLVERS:
+            raise ValueError(f"lcp must be one of {', '.join(LCP_SOLVERS)}, got {self.lcp!r}")
         m = self.near_margin
         if isinstance(m, bool) or not isinstance(m, (int, float)) or not 0.0 <= m < 1.0:
             raise ValueError(f"near_margin must be in [0, 1), got {m!r}")
@@ -279,20 +287,19 @@ def _prepare(sys_: System, settings: SolverSettings) -> _Prepared:
     return _Prepared(K.METHOD_EXPONENTIAL, n_coarse, n_sub, arrays)
 
 
-_warm = False
+_warm: set[str] = set()  # methods whose kernels are compiled in this process
 
 
-def warm_up() -> None:
-    """Compile (or load from numba's cache) the kernel once, so ``wall_s`` never includes it."""
-    global _warm
-    if _warm:
-        return
-    _warm = True
+def warm_up(method: str | None = None) -> None:
+    """Compile (or load from numba's cache) a method's kernels once (default: every method),
+    so ``wall_s`` never includes it. Only the method asked for is compiled: a fresh machine
+    does not pay for kernels it does not use."""
     p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, modes=1)
-    for method in METHODS:
-        simulate_point(
-            p, SolverSettings(method=method, steps_per_period=64, max_periods=3, window=1)
-        )
+    for m in METHODS if method is None else (method,):
+        if m in _warm:
+            continue
+        _warm.add(m)
+        simulate_point(p, SolverSettings(method=m, steps_per_period=64, max_periods=3, window=1))
 
 
 def simulate_point(
@@ -324,7 +331,7 @@ def simulate_point(
         ``failed`` with a reason (and ``None`` values) when the state stopped being finite.
     """
     settings = settings or SolverSettings()
-    warm_up()
+    warm_up(settings.method)
     if settings.method == "event":
         from worker.event import simulate_event
 
@@ -357,7 +364,7 @@ def simulate_point(
         sys_.f_sin, sys_.f_cos, sys_.W, sys_.d, sys_.G, p.g1, p.g2, sys_.kappa, p.theta,
         settings.max_periods, settings.periodicity_tol, settings.window, settings.near_margin,
         settings.adaptive, settings.early_stop, 1e-3,
-        hist, xh, out, xn, ring,
+        hist, xh, out, xn, ring, settings.method == "euler" and settings.lcp == "lemke",
     )  # fmt: skip
     wall = time.perf_counter() - t0
     return _result(out, params, settings, sys_, wall, spp, hist, xh, history_periods)
