@@ -264,17 +264,20 @@ def _run_distributed(
     for fut in queue:
         pending.pop(fut.key, None)
         start, stop = ranges.pop(fut.key)
-        if fut.status == "finished":
-            finished(start, stop, fut.result(), False)
-        else:
-            # The task failed even after its retries (a lost worker, say): record the points as
-            # failed with the reason, and mark the chunk so that a rerun tries them again.
-            exc = fut.exception()
+        # Not ``fut.status``: a finished future whose worker died before we fetched the result
+        # is "lost" until dask has computed it again, and ``result()`` waits for that.
+        try:
+            records = fut.result()
+        except Exception as exc:  # noqa: BLE001 - whatever the task raised, or KilledWorker
+            # The task failed even after its retries (or its workers kept dying): record the
+            # points as failed with the reason, and mark the chunk so a rerun tries them again.
             reason = f"task failed after {TASK_RETRIES} retries: {type(exc).__name__}: {exc}"
             from worker.simulate import SolverSettings
 
             rec = failed_result(SolverSettings(**solver), reason)
             finished(start, stop, [dict(rec) for _ in range(stop - start)], True)
+        else:
+            finished(start, stop, records, False)
         fut.release()
         if stop_now():
             # Finished chunks are stored; queued tasks are dropped (running ones end unused).
