@@ -8,18 +8,9 @@ import os
 import sys
 
 from service import cli
+from service.cli_study import _positive_int
 
 __all__ = ["add_commands"]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
 
 
 def _cmd_nightly(args: argparse.Namespace) -> int:

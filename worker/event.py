@@ -63,6 +63,8 @@ import time
 import numpy as np
 from numba import njit
 
+# The periodicity test is measurement, not stepping: the same rule classifies every method.
+from worker.kernels import _periodicity, _smallest_divisor_period
 from worker.model import CellParams, System, assemble
 
 DEFAULT_EVENT_GRID = 64
@@ -468,53 +470,6 @@ def _full(r, y, Qout, N, x):
         for j in range(nzm - 1):
             acc += Qout[r - 1, i, j] * y[j]
         x[i] = acc
-
-
-# --------------------------------------------------------------------------- periodicity
-
-
-@njit(cache=True)
-def _periodic(ring, nring, period_idx, x, tol, nx):
-    """Smallest p in 1…8 with x_k ≈ x_{k-p}, allowing for the remaining geometric transient."""
-    scale = 1e-300
-    for i in range(nx):
-        scale = max(scale, abs(x[i]))
-    for p in range(1, MAX_PERIOD + 1):
-        if nring < 2 * p + 1:
-            break
-        ia = (period_idx - p) % RING
-        ib = (period_idx - 2 * p) % RING
-        d1 = 0.0
-        d2 = 0.0
-        for i in range(nx):
-            d1 = max(d1, abs(x[i] - ring[ia, i]))
-            d2 = max(d2, abs(ring[ia, i] - ring[ib, i]))
-        if d1 > tol * scale:
-            continue
-        if d1 <= 1e-13 * scale:
-            return p
-        if d2 > 0.0:
-            rho = d1 / d2
-            if rho < 0.95 and d1 / (1.0 - rho) <= tol * scale:
-                return p
-    return 0
-
-
-@njit(cache=True)
-def _divisor_period(ring, period_idx, x, tol, nx, p):
-    scale = 0.0
-    for i in range(nx):
-        scale = max(scale, abs(x[i]))
-    for q in range(1, p):
-        if p % q:
-            continue
-        ia = (period_idx - q) % RING
-        dq = 0.0
-        for i in range(nx):
-            dq = max(dq, abs(x[i] - ring[ia, i]))
-        if dq <= 10.0 * tol * scale:
-            return q
-    return p
 
 
 # --------------------------------------------------------------------------- measurement
@@ -1087,9 +1042,9 @@ def event_kernel(
             ring[slot, i] = x[i]
         nring += 1
         if early_stop:
-            p = _periodic(ring, nring, period, x, tol, nx)
+            p = _periodicity(ring, nring, period, x, tol, nx)
             if p > 1:
-                p = _divisor_period(ring, period, x, tol, nx, p)
+                p = _smallest_divisor_period(ring, period, x, tol, nx, p)
             if p > 0:
                 out[E_RESPONSE_PERIOD] = p
                 out[E_CONVERGED] = 1.0
