@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
+from worker.lcp import LEMKE_OK, lemke_nb
+
 METHOD_EULER = 0
 METHOD_EXPONENTIAL = 1
 
@@ -261,6 +263,7 @@ def simulate_kernel(
     out,
     xn,
     ring,
+    use_lemke=False,
 ):
     """Run one point from state ``x`` until steady state or the period budget.
 
@@ -268,6 +271,8 @@ def simulate_kernel(
     step; 1 is the exact propagator with Moreau impulses, taking whole coarse steps in free
     flight and ``n_sub`` fine sub-steps only where a stop may be reached.
     ``psi_c``/``psi_f`` (2 × (2N+2), complex) integrate [s; s_b]·e^{-iγt} exactly over a step.
+    ``use_lemke`` (euler only) solves each step's two-stop LCP with the compiled Lemke of
+    ``worker/lcp.py``, as the paper does, instead of the closed form (same solution).
     """
     nx = x.shape[0]
     N = nx // 2
@@ -283,6 +288,22 @@ def simulate_kernel(
     Gf = G  # inverse effective tip mass seen by an impulse over one fine step
     if method == METHOD_EXPONENTIAL:
         Gf = _dot(W, b_f, N)
+    # Lemke's LCP data and workspace (allocated once per point, only if used)
+    nl = 2 if use_lemke else 1
+    lcp_M = np.empty((nl, nl))
+    lcp_q = np.zeros(nl)
+    lcp_T = np.zeros((nl, 2 * nl + 2))
+    lcp_basis = np.zeros(nl, dtype=np.int64)
+    lcp_cand = np.zeros(nl, dtype=np.int64)
+    lcp_B = np.zeros((nl, nl))
+    lcp_xb = np.zeros(nl)
+    lcp_z = np.zeros(nl)
+    if use_lemke:
+        gdt = G * dtc  # euler: n_sub = 1, so Δτ = dtc
+        lcp_M[0, 0] = gdt
+        lcp_M[0, 1] = -gdt
+        lcp_M[1, 0] = -gdt
+        lcp_M[1, 1] = gdt
 
     for k in range(OUT_SIZE):
         out[k] = 0.0
@@ -395,8 +416,20 @@ def simulate_kernel(
                         wpred += W[i] * (x[i] + dtf * xn[N + i])
                     c1 = g1 - wpred
                     c2 = g2 + wpred
-                    l1 = max(0.0, -c1) / (G * dtf)
-                    l2 = max(0.0, -c2) / (G * dtf)
+                    if use_lemke:
+                        lcp_q[0] = c1
+                        lcp_q[1] = c2
+                        status = lemke_nb(lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand, lcp_B,
+                                          lcp_xb, lcp_z, 50)  # fmt: skip
+                        if status == LEMKE_OK:
+                            l1 = lcp_z[0]
+                            l2 = lcp_z[1]
+                        else:  # no solution: the point ends as failed (non-finite state)
+                            l1 = np.nan
+                            l2 = 0.0
+                    else:
+                        l1 = max(0.0, -c1) / (G * dtf)
+                        l2 = max(0.0, -c2) / (G * dtf)
                     P = l2 - l1
                     for i in range(N):
                         xn[N + i] += MinvX[i] * P

@@ -13,12 +13,20 @@ be checked against it and so that benchmarks can compare the two.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 __all__ = [
     "LCPError",
+    "LEMKE_BUDGET",
+    "LEMKE_OK",
+    "LEMKE_RAY",
     "TWO_STOP_RTOL",
     "lemke",
+    "lemke_nb",
+    "lemke_workspace",
     "two_stop_closed_form",
     "two_stop_matrix",
 ]
@@ -418,3 +426,198 @@ def two_stop_closed_form(G_dt: float, c1: float, c2: float) -> tuple[float, floa
             f"c1={a!r}, c2={b!r}, c1 + c2={total!r}"
         )
     return max(0.0, -a) / g, max(0.0, -b) / g
+
+
+# ---------------------------------------------------------------------------------------------
+# Compiled Lemke (numba), for use inside the time loop
+# ---------------------------------------------------------------------------------------------
+
+#: Status codes of :func:`lemke_nb`.
+LEMKE_OK = 0
+LEMKE_RAY = 1
+LEMKE_BUDGET = 2
+
+
+def lemke_workspace(n: int) -> tuple[np.ndarray, ...]:
+    """Preallocated arrays for :func:`lemke_nb` on an ``n``-square LCP.
+
+    Returns ``(tableau, basis, cand, Bm, xb, z)``, to be passed after ``M, q`` (and ``z`` read
+    back as the solution). Allocated once, so the solver allocates nothing per call.
+    """
+    return (
+        np.zeros((n, 2 * n + 2)),
+        np.zeros(n, dtype=np.int64),
+        np.zeros(n, dtype=np.int64),
+        np.zeros((n, n)),
+        np.zeros(n),
+        np.zeros(n),
+    )
+
+
+@njit(cache=True)
+def _lex_pick_nb(T, n, cand, m, col, divide):
+    """Row among ``cand[:m]`` with the lexicographically smallest [rhs, B⁻¹ row] (÷ pivot column).
+
+    Same rule as :func:`_lexicographic_argmin`: near-equal entries (relative ``_TIE_RTOL``) tie.
+    ``cand`` is reordered in place.
+    """
+    rhs = 2 * n + 1
+    for k in range(n + 1):
+        src = rhs if k == 0 else k - 1
+        best = np.inf
+        big = 0.0
+        for a in range(m):
+            r = cand[a]
+            v = T[r, src] / T[r, col] if divide else T[r, src]
+            best = min(best, v)
+            big = max(big, abs(v))
+        lim = best + _TIE_RTOL * max(1.0, big)
+        keep = 0
+        for a in range(m):
+            r = cand[a]
+            v = T[r, src] / T[r, col] if divide else T[r, src]
+            if v <= lim:
+                cand[keep] = r
+                keep += 1
+        m = keep
+        if m == 1:
+            break
+    return cand[0]
+
+
+@njit(cache=True)
+def _pivot_nb(T, basis, row, col):
+    p = T[row, col]
+    ncol = T.shape[1]
+    for j in range(ncol):
+        T[row, j] /= p
+    for r in range(T.shape[0]):
+        if r == row:
+            continue
+        f = T[r, col]
+        if f != 0.0:
+            for j in range(ncol):
+                T[r, j] -= f * T[row, j]
+        T[r, col] = 0.0
+    T[row, col] = 1.0
+    basis[row] = col
+
+
+@njit(cache=True)
+def lemke_nb(M, q, T, basis, cand, Bm, xb, z, max_pivots):
+    """Compiled Lemke: the algorithm of :func:`lemke` (same pivots, ties and refinement).
+
+    No input validation and no allocation: ``M`` (n × n) and ``q`` (n) must be finite, the
+    workspace comes from :func:`lemke_workspace`. The solution is written to ``z``.
+
+    Returns
+    -------
+    int
+        :data:`LEMKE_OK`, :data:`LEMKE_RAY` (ray termination) or :data:`LEMKE_BUDGET`
+        (``max_pivots`` reached); ``z`` is zero unless the status is ``LEMKE_OK``.
+    """
+    n = q.shape[0]
+    for i in range(n):
+        z[i] = 0.0
+    feasible = True
+    for i in range(n):
+        if q[i] < 0.0:
+            feasible = False
+            break
+    if feasible:
+        return LEMKE_OK
+    z0 = 2 * n
+    rhs = 2 * n + 1
+    big = 1.0
+    for i in range(n):
+        for j in range(n):
+            T[i, j] = 1.0 if i == j else 0.0
+            T[i, n + j] = -M[i, j]
+            big = max(big, abs(M[i, j]))
+        T[i, z0] = -1.0
+        T[i, rhs] = q[i]
+        basis[i] = i
+    pivot_tol = _PIVOT_RTOL * big
+    for i in range(n):
+        cand[i] = i
+    row = _lex_pick_nb(T, n, cand, n, z0, False)
+    leaving = basis[row]
+    _pivot_nb(T, basis, row, z0)
+    pivots = 1
+    while True:
+        entering = leaving + n if leaving < n else leaving - n
+        m = 0
+        min_ratio = np.inf
+        max_abs = 0.0
+        z0_row = -1
+        for r in range(n):
+            if T[r, entering] > pivot_tol:
+                cand[m] = r
+                m += 1
+                ratio = T[r, rhs] / T[r, entering]
+                min_ratio = min(min_ratio, ratio)
+                max_abs = max(max_abs, abs(ratio))
+                if basis[r] == z0 and z0_row < 0:
+                    z0_row = r
+        if m == 0:
+            return LEMKE_RAY
+        if pivots >= max_pivots:
+            return LEMKE_BUDGET
+        tie = _TIE_RTOL * max(1.0, max_abs)
+        if z0_row >= 0 and T[z0_row, rhs] / T[z0_row, entering] <= min_ratio + tie:
+            row = z0_row
+        else:
+            row = _lex_pick_nb(T, n, cand, m, entering, True)
+        leaving = basis[row]
+        _pivot_nb(T, basis, row, entering)
+        pivots += 1
+        if leaving == z0:
+            break
+    # Refine: re-solve the final basis with the original data (Gaussian elimination with
+    # partial pivoting on the workspace; kept as read off the tableau if singular).
+    for r in range(n):
+        xb[r] = q[r]
+        var = basis[r]
+        for i in range(n):
+            if var < n:
+                Bm[i, r] = 1.0 if i == var else 0.0
+            else:
+                Bm[i, r] = -M[i, var - n]
+    ok = True
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(Bm[i, k]) > abs(Bm[p, k]):
+                p = i
+        if abs(Bm[p, k]) < 1e-300:
+            ok = False
+            break
+        if p != k:
+            for j in range(n):
+                tmp = Bm[k, j]
+                Bm[k, j] = Bm[p, j]
+                Bm[p, j] = tmp
+            tmp = xb[k]
+            xb[k] = xb[p]
+            xb[p] = tmp
+        for i in range(k + 1, n):
+            f = Bm[i, k] / Bm[k, k]
+            if f != 0.0:
+                for j in range(k, n):
+                    Bm[i, j] -= f * Bm[k, j]
+                xb[i] -= f * xb[k]
+    if ok:
+        for k in range(n - 1, -1, -1):
+            acc = xb[k]
+            for j in range(k + 1, n):
+                acc -= Bm[k, j] * xb[j]
+            xb[k] = acc / Bm[k, k]
+        for r in range(n):
+            if not math.isfinite(xb[r]):
+                ok = False
+    for r in range(n):
+        var = basis[r]
+        if var >= n and var < z0:
+            v = xb[r] if ok else T[r, rhs]
+            z[var - n] = max(v, 0.0)
+    return LEMKE_OK

@@ -369,3 +369,89 @@ def test_lemke_pivot_budget() -> None:
     with pytest.raises(LCPError, match="budget"):
         lemke(M, q, max_pivots=1)
     assert issubclass(LCPError, RuntimeError)
+
+
+# ---------------------------------------------------------------------------------------------
+# Compiled Lemke (numba) against the numpy one
+# ---------------------------------------------------------------------------------------------
+
+
+def _lemke_nb(M: np.ndarray, q: np.ndarray, max_pivots: int = 1000) -> tuple[int, np.ndarray]:
+    from worker.lcp import lemke_nb, lemke_workspace
+
+    ws = lemke_workspace(len(q))
+    status = lemke_nb(np.ascontiguousarray(M, dtype=float), np.asarray(q, dtype=float), *ws,
+                      max_pivots)  # fmt: skip
+    return status, ws[-1].copy()
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 6])
+def test_lemke_nb_matches_numpy_lemke(n: int) -> None:
+    from worker.lcp import LEMKE_OK
+
+    rng = np.random.default_rng(7000 + n)
+    for trial in range(60):
+        kind = trial % 3
+        if kind == 0:
+            M = random_pd(rng, n)
+            q = rng.normal(size=n) * rng.choice([0.01, 1.0, 100.0])
+        elif kind == 1 and n > 1:
+            M = random_p_matrix(rng, n, trial % 2)
+            q = rng.normal(size=n)
+        else:  # degenerate integer data with exact ties
+            A = rng.integers(-2, 3, size=(n, n)).astype(float)
+            M = A @ A.T + np.eye(n)
+            q = rng.choice([-2.0, -1.0, 0.0, 1.0], size=n)
+        status, z = _lemke_nb(M, q)
+        assert status == LEMKE_OK
+        assert_solves_lcp(M, q, z)
+        np.testing.assert_allclose(z, lemke(M, q), rtol=1e-10, atol=1e-12 * (1 + abs(q).max()))
+
+
+def test_lemke_nb_two_stop_matches_numpy_and_closed_form() -> None:
+    rng = np.random.default_rng(8)
+    for i in range(300):
+        G_dt = float(10.0 ** rng.uniform(-4, 4))
+        c1 = float(rng.normal() * 10.0 ** rng.uniform(-3, 3))
+        c2 = -c1 if i % 4 == 0 else float(-c1 + abs(rng.normal()) * 10.0 ** rng.uniform(-3, 3))
+        M = two_stop_matrix(G_dt)
+        q = np.array([c1, c2])
+        _, z = _lemke_nb(M, q)
+        np.testing.assert_allclose(z, lemke(M, q), rtol=1e-12, atol=1e-14 * max(1, abs(c1)))
+        closed = np.array(two_stop_closed_form(G_dt, c1, c2))
+        scale = max(1.0, abs(c1), abs(c2))
+        np.testing.assert_allclose(M @ z + q, M @ closed + q, rtol=0.0, atol=1e-9 * scale)
+
+
+def test_lemke_nb_ray_and_budget() -> None:
+    from worker.lcp import LEMKE_BUDGET, LEMKE_RAY
+
+    status, z = _lemke_nb(np.array([[1.0, 1.0], [-1.0, -1.0]]), np.array([-1.0, -1.0]))
+    assert status == LEMKE_RAY
+    np.testing.assert_array_equal(z, 0.0)
+    status, _ = _lemke_nb(np.array([[2.0, 1.0], [1.0, 2.0]]), np.array([-5.0, -6.0]), 1)
+    assert status == LEMKE_BUDGET
+
+
+def test_euler_with_compiled_lemke_matches_closed_form() -> None:
+    """``SolverSettings(method="euler", lcp="lemke")``: Lemke at every step, same trajectory."""
+    from worker.model import CellParams
+    from worker.simulate import SolverSettings, simulate_point
+
+    for coupling, gaps in (("paper", 0.1), ("full", 0.1), ("paper", 0.0)):
+        p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.3, g1=gaps, g2=gaps,
+                       coupling=coupling)  # fmt: skip
+        kw = dict(method="euler", steps_per_period=1024, max_periods=40, window=5)
+        a = simulate_point(p, SolverSettings(**kw))
+        b = simulate_point(p, SolverSettings(**kw, lcp="lemke"))
+        assert not b.failed
+        assert b.contact_steps == a.contact_steps > 0
+        np.testing.assert_allclose(b.transmittance_db, a.transmittance_db, rtol=0, atol=1e-9)
+
+
+def test_lcp_setting_is_validated() -> None:
+    from worker.simulate import SolverSettings
+
+    assert SolverSettings().lcp == "closed"
+    with pytest.raises(ValueError, match="lcp must be one of"):
+        SolverSettings(method="euler", lcp="pgs")
