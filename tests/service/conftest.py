@@ -12,6 +12,8 @@ import xarray as xr
 
 # A coarse, fast solver: these tests check the service, not the numbers (tests/worker do that).
 FAST_SOLVER = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}
+# Tests that act mid-study need a study that lasts seconds even on a fast, idle machine.
+SLOW_SOLVER = {"steps_per_period": 2048, "max_periods": 100, "periodicity_tol": 1e-13}
 
 
 def tiny_study(name: str = "tiny", num: int = 8, gaps: tuple[float, ...] = (0.1, 0.5),

@@ -27,7 +27,7 @@ from service.config import Settings
 from service.runner import run_study
 from service.store import StudyStore, open_results
 from service.study import parse_study
-from tests.service.conftest import comparable, tiny_study
+from tests.service.conftest import SLOW_SOLVER, comparable, tiny_study
 
 
 class App:
@@ -272,7 +272,7 @@ def test_run_matches_runner_and_results_routes(make_app: Any, tmp_path: Path) ->
 
 
 def test_cancel_running_study_keeps_finished_chunks(make_app: Any) -> None:
-    d = tiny_study(name="long", num=120, gaps=(0.1, 0.3, 0.5, 0.7))  # 480 points
+    d = tiny_study(name="long", num=120, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)  # 480 points
     with make_app(run_jobs=True) as app:
         sid = app.client.submit(d)["id"]
         t0 = time.monotonic()
@@ -295,7 +295,7 @@ def test_cancel_running_study_keeps_finished_chunks(make_app: Any) -> None:
 
 def test_restart_resumes_interrupted_study(tmp_path: Path, catalogue_url: str,
                                            dask_address: str) -> None:  # fmt: skip
-    d = tiny_study(name="restart", num=120, gaps=(0.1, 0.3, 0.5, 0.7))
+    d = tiny_study(name="restart", num=120, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)
     s = Settings(data_dir=tmp_path / "data", database_url=catalogue_url, scheduler=dask_address)
     study = parse_study(d)
     store = StudyStore(s.data_dir, study)

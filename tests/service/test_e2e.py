@@ -22,7 +22,7 @@ from service.client import Client
 from service.runner import run_study
 from service.store import StudyStore, open_results
 from service.study import parse_study
-from tests.service.conftest import comparable, tiny_study
+from tests.service.conftest import SLOW_SOLVER, comparable, tiny_study
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -114,7 +114,7 @@ def test_submit_wait_dataset_bandgap_plot_timeseries(server: Server, tmp_path: P
 def test_restart_mid_study_completes_without_loss(
     tmp_path: Path, dask_address: str, sig: int
 ) -> None:
-    d = tiny_study(name=f"restart-{sig}", num=150, gaps=(0.1, 0.3, 0.5, 0.7))  # 600 points
+    d = tiny_study(name=f"restart-{sig}", num=150, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)
     data = tmp_path / "data"
     srv = Server(data, dask_address)
     with Client(srv.url) as c:
