@@ -71,6 +71,10 @@ DEFAULT_EVENT_GRID = 64
 DEFAULT_EVENT_TOL = 1e-12
 DEFAULT_MAX_EVENTS_PER_PERIOD = 1000
 MAX_COND = 1e10  # eigenvector condition number beyond which a regime is refused
+# A state beyond this size ends the run as failed (diverged): the event search's error bounds
+# (|c|·|λ|⁴·h⁴) overflow well before the state does, and a search on non-finite values never
+# proves an interval clear (it would split ~4¹⁵ times per interval, i.e. hang).
+MAX_STATE = 1e200
 
 # rows of observables over a regime's state
 R_S = 0
@@ -103,7 +107,7 @@ E_PIECES = 13
 E_IMPACTS = 14
 E_RESPONSE_PERIOD = 15
 E_CONVERGED = 16
-E_FAILED = 17  # 0 ok, 1 non-finite state, 3 event budget exceeded
+E_FAILED = 17  # 0 ok, 1 non-finite state, 3 event budget exceeded, 5 diverged
 E_FAIL_PERIOD = 18
 E_QUICK = 19
 E_HIST_COUNT = 20
@@ -731,6 +735,15 @@ def event_kernel(
             ph0 = 2.0 * math.pi * j / n_grid
             while failed == 0:
                 nz = nzr[r]
+                big = 0.0
+                for i in range(nz):
+                    big = max(big, abs(y[i]))  # NaN never wins a max: test finiteness too
+                    if not math.isfinite(y[i]):
+                        big = math.inf
+                        break
+                if big > MAX_STATE:
+                    failed = 5
+                    break
                 if pending != 0:
                     # impact at the current time without propagation (start on a stop, or the
                     # tip did not leave a stop it was released from)
@@ -1338,6 +1351,10 @@ def simulate_event(
         res.reason = (
             f"event budget exceeded: more than {max_events_per_period} events in period "
             f"{int(out[E_FAIL_PERIOD])} (chattering)"
+        )
+    elif failed == 5:
+        res.reason = (
+            f"state diverged (|state| > {MAX_STATE:.0e}) in period {int(out[E_FAIL_PERIOD])}"
         )
     elif failed == 4:
         res.reason = (

@@ -45,7 +45,8 @@ class SolverSettings:
     steps_per_period : int or None
         Time steps per excitation period; for ``exponential`` the resolution used near the
         stops (free flight takes whole coarse steps, exactly). ``None`` picks a default:
-        2048 for ``exponential``; for ``euler`` 1024 or enough steps for Δτ·ω̃_max <= 1.
+        2048 for ``exponential``; for ``euler`` 1024 or enough steps for Δτ·ω̃_max <= 1
+        (with heavily damped stiff modes: half the largest stable step).
     coarse_steps : int
         Free-flight steps per period of ``exponential`` (a divisor of ``steps_per_period`` is
         used).
@@ -164,17 +165,22 @@ def _euler_check(sys_: System, dt: float) -> None:
         )
     # Damping is explicit in the scheme: heavily damped high modes can be unstable below 2/ω.
     if _euler_radius(sys_, dt) > 1.0 + 1e-9:
-        lo, hi = 0.0, dt
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            if _euler_radius(sys_, mid) > 1.0 + 1e-9:
-                hi = mid
-            else:
-                lo = mid
         raise ValueError(
             f"steps_per_period gives Δτ = {dt:.6g}, unstable for the euler scheme with this "
-            f"damping; the largest stable step is Δτ ≈ {lo:.6g}"
+            f"damping; the largest stable step is Δτ ≈ {_largest_stable_step(sys_, dt):.6g}"
         )
+
+
+def _largest_stable_step(sys_: System, dt: float) -> float:
+    """Bisection on (0, dt] for the largest step with spectral radius <= 1 (dt is unstable)."""
+    lo, hi = 0.0, dt
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _euler_radius(sys_, mid) > 1.0 + 1e-9:
+            hi = mid
+        else:
+            lo = mid
+    return lo
 
 
 def _euler_radius(sys_: System, dt: float) -> float:
@@ -188,9 +194,16 @@ def _euler_radius(sys_: System, dt: float) -> float:
 
 
 def euler_default_steps(sys_: System) -> int:
-    """Default Euler resolution: 1024 per period, or enough for Δτ·ω̃_max <= 1."""
+    """Default Euler resolution: 1024 per period, or enough for Δτ·ω̃_max <= 1.
+
+    Where explicit damping of stiff modes makes that step unstable, half the largest stable
+    step (the same factor 2 of margin), so the default is never refused.
+    """
     T = 2.0 * math.pi / sys_.params.gamma_r
-    return max(DEFAULT_EULER_STEPS, math.ceil(T * sys_.omega_max()))
+    n = max(DEFAULT_EULER_STEPS, math.ceil(T * sys_.omega_max()))
+    if _euler_radius(sys_, T / n) > 1.0 + 1e-9:
+        n = math.ceil(2.0 * T / _largest_stable_step(sys_, T / n))
+    return n
 
 
 def _augmented(sys_: System) -> np.ndarray:
@@ -237,6 +250,13 @@ def _prepare(sys_: System, settings: SolverSettings) -> _Prepared:
     T = 2.0 * math.pi / sys_.params.gamma_r
     if settings.method == "euler":
         spp = settings.steps_per_period or euler_default_steps(sys_)
+        if spp > MAX_STEPS_PER_PERIOD:
+            # only a default can get here (an explicit value is validated): refuse, don't hang
+            raise ValueError(
+                f"the euler scheme needs steps_per_period >= {spp} here (Δτ·ω̃_max <= 1, "
+                f"ω̃_max = {sys_.omega_max():.6g}), more than the limit {MAX_STEPS_PER_PERIOD}; "
+                f"use method exponential or event"
+            )
         _euler_check(sys_, T / spp)
         Minv = sys_.Minv
         arrays = (

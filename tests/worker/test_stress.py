@@ -1,0 +1,156 @@
+"""Extreme parameters for every method: finite or failed with a reason, and right where a
+closed form is known (docs/accuracy.md; the full sweep is benchmarks/stress.py)."""
+
+import math
+import time
+
+import pytest
+
+from worker.model import CellParams, assemble, linear_transmittance_db, pinned_transmittance_db
+from worker.simulate import (
+    MAX_STEPS_PER_PERIOD,
+    SolverSettings,
+    _euler_check,
+    euler_default_steps,
+    simulate_chunk,
+    simulate_point,
+)
+
+BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, gamma_r=0.85)
+METHODS = ("exponential", "event", "euler")
+# Γ tolerance (dB) against the closed forms at default settings, per method.
+TOL = {"exponential": 1e-4, "event": 1e-6, "euler": 0.05}
+TOL_PINNED = {"exponential": 1e-3, "event": 1e-5, "euler": 0.05}
+
+
+def assert_clean(rec: dict) -> None:
+    """No NaN/inf anywhere; finite values, or failed with a reason."""
+    for k, v in rec.items():
+        vals = v if isinstance(v, (list, tuple)) else [v]
+        assert all(not (isinstance(x, float) and not math.isfinite(x)) for x in vals), k
+    if rec["failed"]:
+        assert rec["reason"] and rec["transmittance_db"] is None
+    else:
+        for k in ("transmittance_db", "amplitude", "theta_eff"):
+            assert isinstance(rec[k], float) and math.isfinite(rec[k]), k
+        assert rec["periods"] <= 1000
+
+
+EXTREMES = {
+    "theta=1e-3": {"theta": 1e-3},
+    "sigma=1e-4": {"sigma": 1e-4},
+    "sigma=10": {"sigma": 10.0},
+    "gamma_r=50": {"gamma_r": 50.0},
+    "xi=0": {"xi": 0.0},
+    "xi=0.5": {"xi": 0.5},
+    "gaps=1e-9": {"g1": 1e-9, "g2": 1e-9},
+    "gaps=1e-3/1": {"g1": 1e-3, "g2": 1.0},
+    "gaps=0/0.1": {"g1": 0.0, "g2": 0.1},
+    "modes=1": {"modes": 1},
+}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_extreme_points_are_finite_or_failed_with_a_reason(method):
+    pts = [{**BASE, **kw} for kw in EXTREMES.values()]
+    for label, rec in zip(EXTREMES, simulate_chunk(pts, {"method": method}), strict=True):
+        assert rec["method"] == method, label
+        assert_clean(rec)
+        assert not rec["failed"], (label, rec["reason"])
+
+
+# Closed forms at extreme parameters: huge gaps (linear) and zero gaps (pinned).
+LINEAR = [
+    {"theta": 1e-3, "g1": 1e6, "g2": 1e6},
+    {"theta": 1e3, "g1": 1e6, "g2": 1e6},
+    {"sigma": 10.0, "g1": 1e6, "g2": 1e6, "coupling": "full"},
+    {"gamma_r": 0.01, "g1": 1e6, "g2": 1e6},
+    {"gamma_r": 50.0, "xi": 0.5, "g1": 1e6, "g2": 1e6, "coupling": "full"},
+    {"xi": 0.5, "gamma_s": 10.0, "g1": 1e6, "g2": 1e6},
+]
+PINNED = [
+    {"g1": 0.0, "g2": 0.0, "sigma": 1e-4},
+    {"g1": 0.0, "g2": 0.0, "sigma": 10.0, "coupling": "full"},
+    {"g1": 0.0, "g2": 0.0, "gamma_s": 0.1, "gamma_r": 2.0},
+    {"g1": 0.0, "g2": 0.0, "xi": 0.5, "modes": 1, "coupling": "full"},
+]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_extreme_points_match_the_closed_forms(method):
+    cases = [(kw, linear_transmittance_db, TOL) for kw in LINEAR]
+    cases += [(kw, pinned_transmittance_db, TOL_PINNED) for kw in PINNED]
+    pts = [{**BASE, **kw} for kw, _, _ in cases]
+    for (kw, ref, tol), rec in zip(cases, simulate_chunk(pts, {"method": method}), strict=True):
+        assert_clean(rec)
+        assert rec["converged"] and rec["response_period"] == 1, kw
+        expected = ref(CellParams(**{**BASE, **kw}))
+        assert rec["transmittance_db"] == pytest.approx(expected, abs=tol[method]), kw
+
+
+@pytest.mark.parametrize("method", ["exponential", "event"])
+def test_thirty_modes_pinned_and_impacting(method):
+    p = CellParams(**{**BASE, "modes": 30, "g1": 0.0, "g2": 0.0})
+    r = simulate_point(p, SolverSettings(method=method))
+    assert r.transmittance_db == pytest.approx(pinned_transmittance_db(p), abs=1e-3)
+    rec = simulate_chunk([{**BASE, "modes": 30}], {"method": method})[0]
+    assert_clean(rec)
+    # modal convergence at this point: Γ(30) within 1e-3 dB of Γ(5) (measured 4.7e-4)
+    assert rec["transmittance_db"] == pytest.approx(13.6135, abs=1e-3)
+
+
+def test_paper_coupling_at_theta_1e3_diverges_and_every_method_says_so_quickly():
+    # The published (non-Lagrangian) coupling gains energy at every impact when θ is large:
+    # all three methods find the same growth. The event solver used to hang on the overflow.
+    pt = {**BASE, "theta": 1e3}
+    for method in METHODS:
+        t0 = time.perf_counter()
+        rec = simulate_chunk([pt], {"method": method})[0]
+        assert time.perf_counter() - t0 < 10.0
+        assert_clean(rec)
+        assert rec["failed"] and ("finite" in rec["reason"] or "diverged" in rec["reason"])
+    # the consistent coupling at the same θ is bounded
+    rec = simulate_chunk([{**pt, "coupling": "full"}], {"method": "event"})[0]
+    assert_clean(rec)
+    assert not rec["failed"]
+
+
+def test_euler_refusal_is_a_value_error_naming_steps_per_period():
+    p = CellParams(**BASE)
+    with pytest.raises(ValueError, match=r"steps_per_period .* largest stable step is Δτ"):
+        simulate_point(p, SolverSettings(method="euler", steps_per_period=150))
+    rec = simulate_chunk([BASE], {"method": "euler", "steps_per_period": 150})[0]
+    assert_clean(rec)
+    assert rec["failed"] and "steps_per_period" in rec["reason"]
+    assert "largest stable step" in rec["reason"]
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [{"modes": 30}, {"xi": 0.5, "sigma": 1.0, "modes": 8}, {"xi": 0.5, "modes": 30}],
+)
+def test_euler_default_steps_are_never_refused(kw):
+    # Explicit damping of stiff modes used to make the default (Δτ·ω̃_max = 1) unstable.
+    sys_ = assemble(CellParams(**{**BASE, **kw}))
+    n = euler_default_steps(sys_)
+    _euler_check(sys_, 2 * math.pi / sys_.params.gamma_r / n)
+
+
+def test_euler_default_beyond_the_step_limit_is_refused_not_run():
+    pt = {**BASE, "modes": 30, "sigma": 10.0, "gamma_r": 0.01}
+    assert euler_default_steps(assemble(CellParams(**pt))) > MAX_STEPS_PER_PERIOD
+    t0 = time.perf_counter()
+    rec = simulate_chunk([pt], {"method": "euler"})[0]
+    assert time.perf_counter() - t0 < 5.0
+    assert rec["failed"] and "steps_per_period" in rec["reason"]
+    assert_clean(rec)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_period_budget_ends_a_long_run(method):
+    # γ_r 5 is irregular: the run goes to the budget and is measured on the window.
+    rec = simulate_chunk(
+        [{**BASE, "gamma_r": 5.0}], {"method": method, "max_periods": 150, "window": 10}
+    )[0]
+    assert_clean(rec)
+    assert rec["periods"] == 150 and not rec["converged"] and rec["reason"] == "irregular"
