@@ -43,6 +43,9 @@ import xarray as xr
 __all__ = [
     "EDGE_KINDS",
     "AnalysisError",
+    "coordinate_index",
+    "jsonable",
+    "values_text",
     "Band",
     "band_edges",
     "bandgap_json",
@@ -288,6 +291,29 @@ def _jsonable(a: Any) -> Any:
     if arr.dtype.kind == "M":
         return np.datetime_as_string(arr).tolist()
     return np.vectorize(lambda v: None if v is None else str(v), otypes=[object])(arr).tolist()
+
+
+def coordinate_index(name: str, values: np.ndarray, raw: Any, nearest: bool = False) -> int:
+    """Position of the value ``raw`` among a coordinate's ``values`` (the rule of :func:`select`).
+
+    Raises
+    ------
+    AnalysisError
+        Naming the coordinate, the value and the values allowed.
+    """
+    vals = np.asarray(values)
+    value = _number(name, raw) if vals.dtype.kind in "iufb" else math.nan
+    return _index(name, vals, raw, value, nearest)
+
+
+def values_text(values: np.ndarray) -> str:
+    """A coordinate's values for an error message (shortened when long)."""
+    return _values_text(values)
+
+
+def jsonable(a: Any) -> Any:
+    """Nested lists of plain Python values; NaN and ±inf become None."""
+    return _jsonable(a)
 
 
 def _scalar_json(v: Any) -> Any:

@@ -155,6 +155,6 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
 
 
 def _version() -> str:
-    from service.store import _package_version
+    from service.store import package_version
 
-    return _package_version()
+    return package_version()

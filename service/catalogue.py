@@ -234,6 +234,13 @@ class Catalogue:
             total = int(s.scalar(cq) or 0)
             return [_study_dict(r) for r in rows], total
 
+    def status_counts(self) -> dict[str, int]:
+        """Number of studies in each state (every state listed, zeros included)."""
+        q = select(StudyRow.status, func.count()).group_by(StudyRow.status)
+        with self._tx() as s:
+            found = {str(k): int(n) for k, n in s.execute(q).all()}
+        return {st: found.get(st, 0) for st in STATUSES}
+
     def ids_with_status(self, statuses: Sequence[str]) -> list[str]:
         """Ids of studies in the given states, in submission order."""
         q = select(StudyRow.id).where(StudyRow.status.in_(statuses)).order_by(StudyRow.seq)

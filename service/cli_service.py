@@ -175,6 +175,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from service.client import Client
     from service.config import Settings
+    from service.store import encoding
 
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -199,7 +200,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             rec = c.wait(rec["id"], progress=not args.no_progress)
             ds = c.dataset(rec["id"])
             nc = out / f"{rec['name']}.nc"
-            ds.to_netcdf(nc, engine="netcdf4", encoding=_encoding(ds))
+            ds.to_netcdf(nc, engine="netcdf4", encoding=encoding(ds))
             sel = _demo_selection(ds, "gamma_r", "gap")
             gaps = c.bandgap_map(rec["id"], x="gamma_r", y="gap", nearest=True, **sel)
             png = out / "bandgap.png"
@@ -230,12 +231,6 @@ def _demo_selection(ds: Any, x: str, y: str) -> dict[str, float]:
         vals = ds[d].values
         sel[str(d)] = float(0.3 if d == "theta" and (abs(vals - 0.3) < 1e-9).any() else vals[0])
     return sel
-
-
-def _encoding(ds: Any) -> dict[str, Any]:
-    from service.store import encoding
-
-    return encoding(ds)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

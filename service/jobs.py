@@ -8,6 +8,7 @@ their finished chunks.
 
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import threading
@@ -144,9 +145,9 @@ class JobManager:
 
     def _dask_client(self) -> Any:
         if self._client is None:
-            from service.runner import _make_client
+            from service.runner import make_client
 
-            self._client, self._cluster = _make_client(
+            self._client, self._cluster = make_client(
                 self.settings.scheduler, self.settings.workers
             )
         return self._client
@@ -189,7 +190,6 @@ class JobManager:
         self, sid: str, study: Study, ev: threading.Event, failures: list[dict[str, Any]]
     ) -> RunSummary:
         last = [0.0]
-        counts = {"done": 0}
 
         def on_chunk(start: int, stop: int, records: list[dict[str, Any]]) -> None:
             bad = [i for i, r in enumerate(records) if r.get("failed")]
@@ -203,7 +203,6 @@ class JobManager:
                     })  # fmt: skip
 
         def progress(done: int, total: int) -> None:
-            counts["done"] = done
             now = time.monotonic()
             if now - last[0] >= _PROGRESS_EVERY_S or done >= total:
                 last[0] = now
@@ -221,8 +220,6 @@ class JobManager:
 
 
 def _json(items: list[dict[str, Any]]) -> str:
-    import json
-
     return json.dumps(items, allow_nan=False)
 
 

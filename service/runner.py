@@ -30,6 +30,7 @@ __all__ = [
     "Cancelled",
     "RunSummary",
     "default_chunk_size",
+    "make_client",
     "run_study",
     "warm_up",
 ]
@@ -75,7 +76,8 @@ def warm_up(client: Any, method: str = "exponential") -> None:
     client.run(simulate_chunk, [_WARM_POINT], {**_WARM_SOLVER, "method": method})
 
 
-def _make_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
+def make_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
+    """A dask client on ``scheduler`` (or ``IMPACTCELL_SCHEDULER``), else on a new LocalCluster."""
     from dask.distributed import Client, LocalCluster
 
     address = scheduler or os.environ.get("IMPACTCELL_SCHEDULER") or None
@@ -166,7 +168,7 @@ def run_study(
     try:
         if n_missing and not serial:
             if client is None:
-                own_client, own_cluster = _make_client(scheduler, workers)
+                own_client, own_cluster = make_client(scheduler, workers)
                 client = own_client
             warm_up(client, study.solver.method)
             nworkers = _nthreads(client)

@@ -43,6 +43,7 @@ __all__ = [
     "StudyStore",
     "VARIABLES",
     "atomic_write",
+    "package_version",
     "data_root",
     "open_results",
     "results_from_records",
@@ -403,7 +404,8 @@ def _git_commit() -> str:
     return text if out.returncode == 0 and re.fullmatch(r"[0-9a-f]{40}", text) else "unknown"
 
 
-def _package_version() -> str:
+def package_version() -> str:
+    """The installed impactcell version (``unknown`` when not installed)."""
     try:
         return metadata.version("impactcell")
     except metadata.PackageNotFoundError:
@@ -481,7 +483,7 @@ def results_from_records(
         "study_name": study.name,
         "study_id": study.id,
         "study": study.canonical_json(),
-        "impactcell_version": _package_version(),
+        "impactcell_version": package_version(),
         "solver_version": SOLVER_VERSION,
         "solver_settings": json.dumps(_settings_dict(settings), sort_keys=True),
         "git_commit": _git_commit(),

@@ -64,7 +64,7 @@ import numpy as np
 from numba import njit
 
 # The periodicity test is measurement, not stepping: the same rule classifies every method.
-from worker.kernels import _periodicity, _smallest_divisor_period
+from worker.kernels import _all_finite, _period_sample
 from worker.model import CellParams, System, assemble
 
 DEFAULT_EVENT_GRID = 64
@@ -1038,34 +1038,23 @@ def event_kernel(
             break
         sdot_max_period = sdot_max_this
         _full(r, y, Qout, N, x)
-        finite = True
-        for i in range(nx):
-            if not math.isfinite(x[i]):
-                finite = False
-                break
-        if not finite:
+        if not _all_finite(x, nx):
             out[E_FAILED] = 1.0
             out[E_FAIL_PERIOD] = period
             break
         if measuring:
             out[E_MEASURED] += 1.0
             continue
-        slot = period % RING
-        for i in range(nx):
-            ring[slot, i] = x[i]
         nring += 1
-        if early_stop:
-            p = _periodicity(ring, nring, period, x, tol, nx)
-            if p > 1:
-                p = _smallest_divisor_period(ring, period, x, tol, nx, p)
-            if p > 0:
-                out[E_RESPONSE_PERIOD] = p
-                out[E_CONVERGED] = 1.0
-                out[E_STEADY] = period
-                measuring = True
-                measure_end = period + p
-                _reset_measure(out)
-                thr = 1e-3 * sdot_max_period
+        p = _period_sample(ring, nring, period, x, tol, nx, early_stop)
+        if p > 0:
+            out[E_RESPONSE_PERIOD] = p
+            out[E_CONVERGED] = 1.0
+            out[E_STEADY] = period
+            measuring = True
+            measure_end = period + p
+            _reset_measure(out)
+            thr = 1e-3 * sdot_max_period
 
     out[E_PERIODS] = period
     out[E_PIECES] = pieces

@@ -205,6 +205,33 @@ def _accumulate_harmonics(out, psi, psib, P, x, cf, sf, rot_c, rot_s, nx):
 
 
 @njit(cache=True)
+def _all_finite(x, nx):
+    """Whether the first nx entries of x are finite."""
+    for i in range(nx):  # noqa: SIM110 - a plain loop compiles to the tightest numba code
+        if not math.isfinite(x[i]):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _period_sample(ring, nring, period_idx, x, tol, nx, early_stop):
+    """Store the stroboscopic sample of this period; the response period found (0: none yet).
+
+    ``nring`` counts the samples stored, this one included. Shared by every method so that all
+    classify responses by the same rule.
+    """
+    slot = period_idx % RING
+    for i in range(nx):
+        ring[slot, i] = x[i]
+    if not early_stop:
+        return 0
+    p = _periodicity(ring, nring, period_idx, x, tol, nx)
+    if p > 1:
+        p = _smallest_divisor_period(ring, period_idx, x, tol, nx, p)
+    return p
+
+
+@njit(cache=True)
 def _smallest_divisor_period(ring, period_idx, x, tol, nx, p):
     """A p-periodic state found while a slow transient lingers may really be q-periodic, q | p."""
     scale = 0.0
@@ -518,34 +545,23 @@ def simulate_kernel(
         # ---- end of period: health, stroboscopic sample, periodicity
         period += 1
         sdot_max_period = sdot_max_this
-        finite = True
-        for i in range(nx):
-            if not math.isfinite(x[i]):
-                finite = False
-                break
-        if not finite:
+        if not _all_finite(x, nx):
             out[O_FAILED] = 1.0
             out[O_FAIL_PERIOD] = period
             break
         if measuring:
             out[O_MEASURED_PERIODS] += 1.0
             continue
-        slot = period % RING
-        for i in range(nx):
-            ring[slot, i] = x[i]
         nring += 1
-        if early_stop:
-            p = _periodicity(ring, nring, period, x, tol, nx)
-            if p > 1:
-                p = _smallest_divisor_period(ring, period, x, tol, nx, p)
-            if p > 0:
-                out[O_RESPONSE_PERIOD] = p
-                out[O_CONVERGED] = 1.0
-                out[O_STEADY_PERIOD] = period
-                measuring = True
-                measure_end = period + p
-                _reset_measure(out)
-                thr = 1e-3 * sdot_max_period
+        p = _period_sample(ring, nring, period, x, tol, nx, early_stop)
+        if p > 0:
+            out[O_RESPONSE_PERIOD] = p
+            out[O_CONVERGED] = 1.0
+            out[O_STEADY_PERIOD] = period
+            measuring = True
+            measure_end = period + p
+            _reset_measure(out)
+            thr = 1e-3 * sdot_max_period
 
     out[O_PERIODS] = period
     out[O_STEPS] = steps

@@ -6,7 +6,6 @@ from typing import Any
 
 from fastapi import APIRouter
 
-from service.catalogue import STATUSES
 from service.routes.deps import CatalogueDep, SettingsDep
 from service.schemas import Health
 
@@ -16,15 +15,14 @@ router = APIRouter(tags=["health"])
 @router.get("/health", response_model=Health)
 def health(settings: SettingsDep, catalogue: CatalogueDep) -> dict[str, Any]:
     """Service is up; counts of studies by status; the latest nightly regression result."""
-    from service.store import _package_version
+    from service.store import package_version
     from worker.simulate import SOLVER_VERSION
 
-    counts = {s: catalogue.list_studies(status=s, limit=1)[1] for s in STATUSES}
     return {
         "status": "ok",
-        "version": _package_version(),
+        "version": package_version(),
         "solver_version": SOLVER_VERSION,
-        "studies": counts,
+        "studies": catalogue.status_counts(),
         "nightly_cron": settings.nightly_cron,
         "nightly": catalogue.latest_regression(),
     }

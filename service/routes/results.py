@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import tempfile
 import threading
@@ -17,11 +16,20 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, Response
 from starlette.background import BackgroundTask
 
-from service.analysis import AnalysisError, bandgap_json, bandgap_map, select, slice_json
+from service.analysis import (
+    AnalysisError,
+    bandgap_json,
+    bandgap_map,
+    coordinate_index,
+    jsonable,
+    select,
+    slice_json,
+    values_text,
+)
 from service.catalogue import Catalogue
 from service.routes.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.schemas import ErrorOut
-from service.store import StudyStore, encoding, open_results, results_from_records
+from service.store import FILL_FLOAT, StudyStore, encoding, open_results, results_from_records
 from service.study import Study, parse_study
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
@@ -67,16 +75,17 @@ def _study(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study]:
     return rec, parse_study(rec["definition"], max_points=max(rec["points_total"], 1))
 
 
-def load_dataset(settings: Any, catalogue: Catalogue, study_id: str) -> tuple[xr.Dataset, bool]:
-    """The study's dataset and whether it is partial (from finished chunks only)."""
+def load_dataset(
+    settings: Any, catalogue: Catalogue, study_id: str
+) -> tuple[xr.Dataset, Path | None]:
+    """The study's dataset, and its results file (``None`` when partial: from chunks only)."""
     rec, study = _study(catalogue, study_id)
     store = StudyStore(settings.data_dir, study)
-    if rec["status"] == "finished" and store.results_path.is_file():
-        return _cache.get(store.results_path), False
-    if store.results_path.is_file() and not store.has_retry_chunks():
-        return _cache.get(store.results_path), False
+    path = store.results_path
+    if path.is_file() and (rec["status"] == "finished" or not store.has_retry_chunks()):
+        return _cache.get(path), path
     cols, done = store.collect_partial()
-    return results_from_records(study, cols, computed=done), True
+    return results_from_records(study, cols, computed=done), None
 
 
 def _coords(request: Request) -> dict[str, str]:
@@ -98,12 +107,11 @@ def _json(payload: Any) -> Response:
 )
 def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -> Response:
     """The results as NetCDF; for unfinished studies, from finished chunks (``partial = 1``)."""
-    ds, partial = load_dataset(settings, catalogue, study_id)
+    ds, path = load_dataset(settings, catalogue, study_id)
+    partial = path is None
     headers = {"X-Impactcell-Partial": "1" if partial else "0"}
     name = f"{study_id}{'-partial' if partial else ''}.nc"
-    if not partial:
-        rec, study = _study(catalogue, study_id)
-        path = StudyStore(settings.data_dir, study).results_path
+    if path is not None:
         return FileResponse(path, media_type=_NETCDF, filename=name, headers=headers)
     fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-partial-")
     os.close(fd)
@@ -124,13 +132,13 @@ def data(
     nearest: bool = False,
 ) -> Response:
     """A JSON slice of one variable; other query parameters select coordinate values."""
-    ds, partial = load_dataset(settings, catalogue, study_id)
+    ds, path = load_dataset(settings, catalogue, study_id)
     try:
         da = select(ds, variable, _coords(request), nearest=nearest)
         out = slice_json(da)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    out["partial"] = partial
+    out["partial"] = path is None
     return _json(out)
 
 
@@ -146,14 +154,14 @@ def bandgap(
     nearest: bool = False,
 ) -> Response:
     """The bandgap map: Γ over x × y, where Γ < threshold, and the band edges in x per y."""
-    ds, partial = load_dataset(settings, catalogue, study_id)
+    ds, path = load_dataset(settings, catalogue, study_id)
     try:
         m = bandgap_map(ds, x, y, threshold_db=threshold_db, sel=_coords(request),
                         nearest=nearest)  # fmt: skip
         out = bandgap_json(m)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    out["partial"] = partial
+    out["partial"] = path is None
     return _json(out)
 
 
@@ -177,7 +185,7 @@ def plot(
     """A figure: transmittance (Fig. 5a style), bandgap map, or effective mass (Fig. 6)."""
     from service import plots
 
-    ds, _ = load_dataset(settings, catalogue, study_id)
+    ds, _path = load_dataset(settings, catalogue, study_id)
     sel = _coords(request)
     xdim = x or ("frequency_hz" if "frequency_hz" in ds.dims else "gamma_r")
     try:
@@ -221,8 +229,11 @@ def timeseries(
     from worker.model import CellParams
     from worker.simulate import POINT_KEYS, simulate_point
 
-    rec, study = _study(catalogue, study_id)
-    index, coords = _point_index(study, _coords(request), nearest)
+    _, study = _study(catalogue, study_id)
+    try:
+        index, coords = _point_index(study, _coords(request), nearest)
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
     pt = study.points(index, index + 1)[0]
     try:
         params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
@@ -230,67 +241,35 @@ def timeseries(
     except ValueError as exc:
         raise HTTPException(422, f"point {coords} cannot be simulated: {exc}") from None
     hist = r.history or {}
-    scalars = {k: v for k, v in r.as_dict().items()}
+    result = {k: jsonable(v) for k, v in r.as_dict().items()}
     if format == "netcdf":
-        return _history_netcdf(study_id, coords, hist, scalars)
-    series = {
-        k: [None if not math.isfinite(x) else float(x) for x in np.asarray(v).ravel()]
-        for k, v in hist.items()
-        if k != "state"
-    }
-    return _json({"study_id": study_id, "coords": coords, "result": _clean(scalars),
+        return _history_netcdf(study_id, coords, hist, result)
+    series = {k: jsonable(v) for k, v in hist.items() if k != "state"}
+    return _json({"study_id": study_id, "coords": coords, "result": result,
                   "periods": periods, "series": series})  # fmt: skip
 
 
-def _clean(d: dict[str, Any]) -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, float) and not math.isfinite(v):
-            v = None
-        out[k] = v
-    return out
-
-
 def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int, dict[str, float]]:
+    """Flat index and coordinates of the grid point that ``sel`` picks (every varying axis)."""
     dims = study.dims()
     unknown = sorted(set(sel) - set(dims))
     if unknown:
-        raise HTTPException(
-            422, f"unknown coordinate {unknown[0]!r}; the study's axes are {', '.join(dims)}"
+        raise AnalysisError(
+            f"unknown coordinate {unknown[0]!r}; the study's axes are {', '.join(dims)}"
         )
     idx: list[int] = []
-    coords: dict[str, float] = {}
     for name, values in dims.items():
-        if name not in sel:
-            if values.size == 1:
-                idx.append(0)
-                coords[name] = float(values[0])
-                continue
-            raise HTTPException(
-                422, f"{name} must be given to pick one point; values are "
-                f"{_show(values)}"
-            )  # fmt: skip
-        try:
-            v = float(sel[name])
-        except ValueError:
-            raise HTTPException(422, f"{name} must be a number, got {sel[name]!r}") from None
-        d = np.abs(values - v)
-        i = int(np.argmin(d))
-        if not nearest and d[i] > 1e-9 * max(1.0, abs(v)):
-            raise HTTPException(
-                422, f"{name}={v:g} is not a coordinate value; values are {_show(values)} "
-                "(use nearest=true)"
-            )  # fmt: skip
-        idx.append(i)
-        coords[name] = float(values[i])
+        if name in sel:
+            idx.append(coordinate_index(name, values, sel[name], nearest))
+        elif values.size == 1:
+            idx.append(0)
+        else:
+            raise AnalysisError(
+                f"{name} must be given to pick one point; values are {values_text(values)}"
+            )
+    coords = {name: float(v[i]) for (name, v), i in zip(dims.items(), idx, strict=True)}
     flat = int(np.ravel_multi_index(tuple(idx), tuple(v.size for v in dims.values())))
     return flat, coords
-
-
-def _show(values: np.ndarray) -> str:
-    if values.size <= 8:
-        return ", ".join(f"{x:g}" for x in values)
-    return f"{values.size} values from {values.min():g} to {values.max():g}"
 
 
 def _history_netcdf(
@@ -310,10 +289,10 @@ def _history_netcdf(
         attrs={
             "study_id": study_id,
             "point": json.dumps(coords),
-            "result": json.dumps(_clean(result), default=str),
+            "result": json.dumps(result),
         },  # fmt: skip
     )
-    enc = {k: {"_FillValue": 9.969209968386869e36, "zlib": True} for k in data_vars}
+    enc = {k: {"_FillValue": FILL_FLOAT, "zlib": True} for k in data_vars}
     fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-ts-")
     os.close(fd)
     ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)
