@@ -34,7 +34,7 @@ from pydantic import (
     model_validator,
 )
 
-from worker.physical import PhysicalCell
+from worker.physical import CELL_FIELDS, PhysicalCell
 from worker.simulate import SOLVER_VERSION, SolverSettings
 
 __all__ = [
@@ -68,15 +68,7 @@ _POSITIVE = {
     "thickness_m", "density_kg_m3", "youngs_modulus_pa", "outer_mass_kg", "spring_n_m",
     "base_amplitude_m", "base_acceleration_m_s2",
 }  # fmt: skip
-_PHYSICAL_REQUIRED = (
-    "length_m",
-    "width_m",
-    "thickness_m",
-    "density_kg_m3",
-    "youngs_modulus_pa",
-    "outer_mass_kg",
-    "spring_n_m",
-)
+_PHYSICAL_REQUIRED = CELL_FIELDS
 
 
 def max_points_limit() -> int:

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = [
+    "CELL_FIELDS",
     "TABLE1_FREQUENCIES_HZ",
     "PhysicalCell",
     "cantilever_betas",
@@ -118,6 +119,18 @@ def _check_nonnegative(name: str, value: Any) -> float:
     return out
 
 
+# The cell's own quantities: always given, always > 0 (the rest of a PhysicalCell has defaults).
+CELL_FIELDS = (
+    "length_m",
+    "width_m",
+    "thickness_m",
+    "density_kg_m3",
+    "youngs_modulus_pa",
+    "outer_mass_kg",
+    "spring_n_m",
+)
+
+
 @dataclass(frozen=True, kw_only=True)
 class PhysicalCell:
     """A beam-in-mass unit cell described in SI units.
@@ -183,16 +196,7 @@ class PhysicalCell:
         """Validate every field and normalise numbers to built-in ``float``."""
         # Normalising (e.g. numpy scalars, ints) keeps repr/equality/hashing predictable;
         # frozen dataclasses need object.__setattr__ for this.
-        positive = (
-            "length_m",
-            "width_m",
-            "thickness_m",
-            "density_kg_m3",
-            "youngs_modulus_pa",
-            "outer_mass_kg",
-            "spring_n_m",
-        )
-        for name in positive:
+        for name in CELL_FIELDS:
             object.__setattr__(self, name, _check_positive(name, getattr(self, name)))
         for name in ("damping_ratio", "gap_m"):
             object.__setattr__(self, name, _check_nonnegative(name, getattr(self, name)))
