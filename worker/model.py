@@ -219,6 +219,21 @@ class System:
         A[n:, n:] = -self.Minv @ self.C
         return A
 
+    def augmented_matrix(self) -> np.ndarray:
+        """``ż = A_aug z`` with ``z = [u; q; cos γ_r τ; sin γ_r τ]``: the harmonic forcing
+        carried in the state, so free flight is one linear system (no particular solution
+        needed, exact even at an undamped resonance)."""
+        n = self.ndof
+        g = self.params.gamma_r
+        A = np.zeros((2 * n + 2, 2 * n + 2))
+        A[: 2 * n, : 2 * n] = self.state_matrix()
+        fs = self.Minv[:, -1]  # M⁻¹ e_s
+        A[n : 2 * n, 2 * n] = fs * self.f_cos
+        A[n : 2 * n, 2 * n + 1] = fs * self.f_sin
+        A[2 * n, 2 * n + 1] = -g
+        A[2 * n + 1, 2 * n] = g
+        return A
+
 
 def rayleigh_constants(omegas: np.ndarray, xi_b: float) -> tuple[float, float]:
     """Rayleigh α_R, β_R fixed at modes 1 and min(5, n) (MODEL.md §4)."""
@@ -277,15 +292,75 @@ def assemble(p: CellParams) -> System:
 # --------------------------------------------------------------------------- linear references
 
 
-def linear_transmittance_db(p: CellParams) -> float:
-    """Γ of the impact-free system (gaps → ∞), from the complex frequency response (MODEL.md §8)."""
-    sys_ = assemble(p)
+@dataclass(frozen=True)
+class SteadyState:
+    """The impact-free steady state in closed form: ``u(τ) = Re(U e^{iγ_r τ})`` (MODEL.md §8).
+
+    It is the response of the cell without stops (gaps → ∞), and the steady state of any point
+    whose tip provably never reaches a stop again.
+    """
+
+    params: CellParams
+    U: np.ndarray  # complex amplitudes of u = [η_1 … η_n, s]
+    kappa: float
+    d: np.ndarray
+    W: np.ndarray
+
+    @property
+    def amplitude(self) -> float:
+        """A_s = |U_s|."""
+        return float(abs(self.U[-1]))
+
+    @property
+    def transmittance_db(self) -> float:
+        """Γ = 20 log10(A_s / θγ_s) (Eq. 32)."""
+        return 20.0 * math.log10(self.amplitude / self.params.base_scale)
+
+    @property
+    def theta_eff(self) -> float:
+        """θ_eff from the first harmonics (Eq. 35); for a harmonic motion the phase-portrait
+        slope ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ is Re(Ŝ_b/Ŝ) too, so both estimators equal this value."""
+        ratio = (self.d @ self.U[:-1]) / self.U[-1]
+        theta = self.params.theta
+        return float((self.kappa - theta * ratio.real) / (1.0 + theta))
+
+    @property
+    def tip_amplitude(self) -> float:
+        """|Ŵ|: the largest |w_tip| over the orbit."""
+        return float(abs(self.W @ self.U))
+
+    def state_at_phase_zero(self) -> np.ndarray:
+        """``[u; q]`` at forcing phase 0 (τ a whole number of periods)."""
+        g = self.params.gamma_r
+        return np.concatenate([self.U.real, (1j * g * self.U).real])
+
+
+def steady_state(sys_: System, forcing: bool = True) -> SteadyState | None:
+    """The closed-form impact-free steady state, or ``None`` at an undamped resonance (the
+    forcing frequency on a natural frequency of an undamped system: no steady state)."""
+    p = sys_.params
     g = p.gamma_r
     H = sys_.K - g * g * sys_.M + 1j * g * sys_.C
     e_s = np.zeros(sys_.ndof)
     e_s[-1] = 1.0
-    amp = abs(np.linalg.solve(H, e_s)[-1]) * abs(1.0 / p.gamma_s + 2j * p.xi * g)
-    return 20.0 * math.log10(amp / p.base_scale)
+    try:
+        h = np.linalg.solve(H, e_s)
+    except np.linalg.LinAlgError:
+        return None
+    # |H⁻¹| >= |H⁻¹ e_s|: a response 1e13 times the size of what H maps it to is a singular H
+    if not np.all(np.isfinite(h)) or np.max(np.abs(h)) * np.max(np.abs(H)) > 1e13:
+        return None
+    # F(τ) = e_s (f_sin sin γτ + f_cos cos γτ) = Re(e_s (f_cos - i f_sin) e^{iγτ})
+    f = complex(sys_.f_cos, -sys_.f_sin) if forcing else 0j
+    return SteadyState(params=p, U=h * f, kappa=sys_.kappa, d=sys_.d, W=sys_.W)
+
+
+def linear_transmittance_db(p: CellParams) -> float:
+    """Γ of the impact-free system (gaps → ∞), from the complex frequency response (MODEL.md §8)."""
+    ss = steady_state(assemble(p))
+    if ss is None:
+        raise ValueError(f"no steady state: undamped resonance at gamma_r = {p.gamma_r}")
+    return ss.transmittance_db
 
 
 def pinned_transmittance_db(p: CellParams) -> float:

@@ -1,4 +1,13 @@
-"""Observables from the kernel's measurements (MODEL.md §6)."""
+"""Observables of a point (MODEL.md §6): transmittance and the effective-mass estimators.
+
+Why there is no time average of Eq. 36: the instantaneous ratio ``ṡ_b/ṡ`` is singular wherever
+``ṡ`` crosses zero (twice a period, and at every impact in the paper coupling, where ``ṡ``
+jumps through zero), so its plain average over time diverges and any finite value depends on
+the sampling. Two well-defined estimators are offered instead: the first-harmonic ratio
+(Eq. 35) and the least-squares slope of the velocity phase portrait ``ṡ_b ≈ r ṡ``,
+``r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩``, which is bounded (Cauchy–Schwarz) and equals ``Re(Ŝ_b/Ŝ)`` for a harmonic
+motion, so both agree at linear points.
+"""
 
 from __future__ import annotations
 
@@ -19,10 +28,17 @@ def theta_eff_harmonic(S: complex, Sb: complex, kappa: float, theta: float) -> f
     return float((kappa - theta * (Sb / S).real) / (1.0 + theta))
 
 
+def theta_eff_slope(vv: float, vb: float, kappa: float, theta: float) -> float | None:
+    """θ_eff = (κ - θ⟨ṡ_b ṡ⟩/⟨ṡ²⟩)/(1 + θ): the phase-portrait slope; None if ṡ ≡ 0."""
+    if not vv > 0.0:
+        return None
+    return float((kappa - theta * vb / vv) / (1.0 + theta))
+
+
 def theta_eff_instantaneous(
     sdot: np.ndarray, sbdot: np.ndarray, kappa: float, theta: float
 ) -> np.ndarray:
-    """Eq. 36's instantaneous ratio; NaN where |ṡ| < 10⁻³ max|ṡ| (singular there)."""
+    """Eq. 36's instantaneous ratio, for time histories only; NaN where |ṡ| < 10⁻³ max|ṡ|."""
     thr = 1e-3 * np.max(np.abs(sdot)) if len(sdot) else 0.0
     ok = np.abs(sdot) >= thr
     out = np.full(sdot.shape, np.nan)

@@ -6,9 +6,10 @@ The paper's time-stepping scheme computes the contact impulses of each step from
 
 For the unit cell there are exactly two stops and the LCP has the special form
 ``M = G dt [[1, -1], [-1, 1]]``, ``q = [c1, c2]`` with ``c1 + c2 >= 0``, which has a closed form
-(:func:`two_stop_closed_form`) that the simulator uses in its hot loop. The general solver
-(:func:`lemke`) exists as the independent reference the paper names, so that the closed form can
-be checked against it and so that benchmarks can compare the two.
+(:func:`two_stop_closed_form`) that the simulator uses in its hot loop. Lemke's complementary
+pivoting (:func:`lemke_nb`, compiled) is the general solver the paper names: ``euler`` with
+``lcp="lemke"`` runs it at every step as published, and it is what more contacts will need.
+Its tests compare it with a brute-force enumeration of complementary bases.
 """
 
 from __future__ import annotations
@@ -19,15 +20,14 @@ import numpy as np
 from numba import njit
 
 __all__ = [
-    "LCPError",
     "LEMKE_BUDGET",
     "LEMKE_OK",
     "LEMKE_RAY",
     "TWO_STOP_RTOL",
-    "lemke",
     "lemke_nb",
     "lemke_workspace",
     "two_stop_closed_form",
+    "two_stop_impulses",
     "two_stop_matrix",
 ]
 
@@ -46,50 +46,6 @@ _PIVOT_RTOL: float = 1e-12
 # what lexicographic ordering resolves; after floating-point pivots, "exact" ties differ in the
 # last few bits, so they have to be recognised as ties rather than broken by noise.
 _TIE_RTOL: float = 1e-11
-
-
-class LCPError(RuntimeError):
-    """Lemke's algorithm stopped without finding a solution.
-
-    Raised on ray termination (the problem is infeasible, or the matrix is outside the class
-    for which Lemke's method is guaranteed to work) and when the pivot budget runs out.
-    """
-
-
-def _as_float_array(value: object, name: str, ndim: int) -> np.ndarray:
-    """Convert ``value`` to a finite float array of the given rank, or raise ValueError.
-
-    Parameters
-    ----------
-    value : array_like
-        The user's input.
-    name : str
-        Argument name, used in the error message.
-    ndim : int
-        Required number of dimensions.
-
-    Returns
-    -------
-    numpy.ndarray
-        A new float64 array (a copy, so the caller's data is never modified by pivoting).
-
-    Raises
-    ------
-    ValueError
-        If ``value`` is not numeric, has the wrong rank, or contains NaN or infinity.
-    """
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"{name} must be a real numeric array, got {type(value).__name__}: {value!r}"
-        ) from exc
-    if arr.ndim != ndim:
-        kind = "a 1-D vector" if ndim == 1 else "a 2-D square matrix"
-        raise ValueError(f"{name} must be {kind}, got an array of shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must contain only finite values (no NaN or inf), got {arr!r}")
-    return arr
 
 
 def _validate_positive(value: float, name: str) -> float:
@@ -148,214 +104,6 @@ def _validate_finite(value: float, name: str) -> float:
     if not np.isfinite(x):
         raise ValueError(f"{name} must be a finite real number, got {value!r}")
     return x
-
-
-def _lexicographic_argmin(rows: np.ndarray) -> int:
-    """Index of the lexicographically smallest row, treating near-equal entries as ties.
-
-    Parameters
-    ----------
-    rows : numpy.ndarray
-        2-D array, one candidate per row. Column 0 is the ordinary minimum ratio; the following
-        columns are the tie-breakers.
-
-    Returns
-    -------
-    int
-        Row index of the lexicographic minimum. If rounding leaves several rows tied on every
-        column (impossible in exact arithmetic, since the tie-break columns come from a
-        nonsingular matrix), the first of them is returned.
-    """
-    candidates = np.arange(rows.shape[0])
-    for col in range(rows.shape[1]):
-        values = rows[candidates, col]
-        best = values.min()
-        # Ties are judged relative to the size of the column's entries, because ratios of
-        # different magnitude carry rounding errors of different absolute size.
-        scale = max(1.0, float(np.abs(values).max()))
-        candidates = candidates[values <= best + _TIE_RTOL * scale]
-        if candidates.size == 1:
-            break
-    return int(candidates[0])
-
-
-def lemke(M: np.ndarray, q: np.ndarray, max_pivots: int | None = None) -> np.ndarray:
-    """Solve the linear complementarity problem LCP(M, q) by Lemke's complementary pivoting.
-
-    Finds ``z >= 0`` with ``w = M z + q >= 0`` and ``z . w = 0``.
-
-    The method augments the problem with an artificial variable ``z0`` and the covering vector
-    of ones, ``w = M z + q + e z0``, starts from the almost-complementary basis obtained by
-    letting ``z0`` enter at ``-min(q)``, and then repeatedly lets the complement of the
-    variable that just left the basis enter, until ``z0`` leaves (a solution) or the entering
-    column has no blocking row (ray termination). The minimum-ratio test breaks ties
-    lexicographically with the rows of the current basis inverse, which is the standard
-    perturbation argument that rules out cycling on degenerate problems. When the artificial
-    variable is among the tied rows it is chosen, since that finishes the algorithm at once.
-
-    Parameters
-    ----------
-    M : numpy.ndarray
-        Square matrix of shape ``(n, n)`` with finite entries.
-    q : numpy.ndarray
-        Vector of shape ``(n,)`` with finite entries.
-    max_pivots : int or None, optional
-        Maximum number of pivots, counting the initial one. ``None`` (the default) allows
-        ``max(1000, 50 * n)``, far more than the handful of pivots practical problems need,
-        yet still a guard against runaway loops.
-
-    Returns
-    -------
-    numpy.ndarray
-        The solution ``z``, shape ``(n,)``, float64. Rounding-level negative components are
-        clipped to zero.
-
-    Raises
-    ------
-    ValueError
-        If ``M`` is not square, ``q`` does not match it, either contains NaN or infinity, or
-        ``max_pivots`` is not a positive integer.
-    LCPError
-        On ray termination (no solution found: for copositive-plus matrices, such as the
-        positive semi-definite ones, this proves the LCP infeasible) or when the pivot budget
-        is exhausted.
-
-    Notes
-    -----
-    Lemke's method is guaranteed to terminate with a solution for P-matrices (every principal
-    minor positive, which includes positive-definite matrices), and for copositive-plus
-    matrices whenever the LCP is feasible. For other matrices a ray termination does not prove
-    that no solution exists.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> z = lemke(np.array([[2.0, 1.0], [1.0, 2.0]]), np.array([-5.0, -6.0]))
-    >>> np.round(z, 12)
-    array([1.33333333, 2.33333333])
-    """
-    M_arr = _as_float_array(M, "M", 2)
-    if M_arr.shape[0] != M_arr.shape[1]:
-        raise ValueError(f"M must be a square matrix, got shape {M_arr.shape}")
-    n = M_arr.shape[0]
-    q_arr = _as_float_array(q, "q", 1)
-    if q_arr.shape != (n,):
-        raise ValueError(
-            f"q must have shape ({n},) to match M of shape {M_arr.shape}, got shape {q_arr.shape}"
-        )
-    if max_pivots is None:
-        budget = max(1000, 50 * n)
-    else:
-        # bool is an int subclass; True as a pivot budget is surely a mistake.
-        if isinstance(max_pivots, bool) or not isinstance(max_pivots, int | np.integer):
-            raise ValueError(f"max_pivots must be a positive integer or None, got {max_pivots!r}")
-        if max_pivots < 1:
-            raise ValueError(f"max_pivots must be a positive integer or None, got {max_pivots}")
-        budget = int(max_pivots)
-
-    # z = 0 gives w = q; if that is already feasible it is complementary, and no pivoting is
-    # needed. This is also the common "no contact" case in the time stepper.
-    if np.all(q_arr >= 0.0):
-        return np.zeros(n)
-
-    # Variable numbering: w_i -> i, z_i -> n + i, the artificial z0 -> 2n.
-    # Tableau columns: [ w (identity) | z (-M) | z0 (-e) | rhs q ] for  I w - M z - e z0 = q.
-    # Keeping the identity block means its current contents are the basis inverse, which is
-    # exactly what the lexicographic tie-break needs.
-    z0 = 2 * n
-    rhs = 2 * n + 1
-    tableau = np.zeros((n, 2 * n + 2))
-    tableau[:, :n] = np.eye(n)
-    tableau[:, n : 2 * n] = -M_arr
-    tableau[:, z0] = -1.0
-    tableau[:, rhs] = q_arr
-    basis = np.arange(n)  # basis[row] = variable that is basic in that row
-
-    # Pivot entries are compared with the size of the data, so that the test does not depend
-    # on the units of M.
-    pivot_tol = _PIVOT_RTOL * max(1.0, float(np.abs(M_arr).max()))
-
-    def pivot(row: int, col: int) -> None:
-        """Gauss-Jordan pivot of the tableau on (row, col); updates the basis in place."""
-        tableau[row] /= tableau[row, col]
-        column = tableau[:, col].copy()
-        column[row] = 0.0
-        tableau[:] -= np.outer(column, tableau[row])
-        # Force the pivot column to an exact unit vector; the elimination leaves rounding
-        # residue there that would otherwise leak into later ratio tests.
-        tableau[:, col] = 0.0
-        tableau[row, col] = 1.0
-        basis[row] = col
-
-    # Initial pivot: z0 enters at the level that makes every w_i >= 0, i.e. -min(q). The column
-    # of z0 is -e, so every row "blocks" with ratio q_i / -1; the lexicographic minimum of
-    # [q_i, (B^-1)_i] over the rows picks the most negative q_i and breaks ties consistently
-    # with the perturbed problem q + (eps, eps^2, ...).
-    lex_rows = np.column_stack([tableau[:, rhs], tableau[:, :n]])
-    row = _lexicographic_argmin(lex_rows)
-    leaving = int(basis[row])
-    pivot(row, z0)
-    pivots = 1
-
-    while True:
-        # Complementary rule: the complement of the variable that just left enters.
-        entering = leaving + n if leaving < n else leaving - n
-        column = tableau[:, entering]
-        blocking = np.flatnonzero(column > pivot_tol)
-        if blocking.size == 0:
-            raise LCPError(
-                "Lemke's algorithm ended on a secondary ray after "
-                f"{pivots} pivots: no solution was found (the LCP is infeasible, or M is "
-                "not in a class, such as P-matrices or copositive-plus matrices, for which the "
-                "method is guaranteed to succeed)"
-            )
-        if pivots >= budget:
-            raise LCPError(
-                f"Lemke's algorithm exhausted its pivot budget of {budget} pivots without "
-                "reaching a solution; pass a larger max_pivots if the problem is large or "
-                "badly degenerate"
-            )
-
-        ratios = tableau[blocking, rhs] / column[blocking]
-        min_ratio = ratios.min()
-        # If z0 can leave at the minimum ratio, let it: the next basis is complementary, i.e. a
-        # solution, and there is nothing to gain from breaking the tie any other way.
-        z0_rows = blocking[basis[blocking] == z0]
-        tie = _TIE_RTOL * max(1.0, float(np.abs(ratios).max()))
-        if z0_rows.size and tableau[z0_rows[0], rhs] / column[z0_rows[0]] <= min_ratio + tie:
-            row = int(z0_rows[0])
-        else:
-            lex_rows = np.column_stack([tableau[blocking, rhs], tableau[blocking, :n]])
-            lex_rows /= column[blocking, None]
-            row = int(blocking[_lexicographic_argmin(lex_rows)])
-        leaving = int(basis[row])
-        pivot(row, entering)
-        pivots += 1
-        if leaving == z0:
-            break
-
-    # Read z off the final tableau, then refine it by re-solving the final basis with the
-    # original data: many Gauss-Jordan pivots accumulate rounding, whereas one solve with the
-    # original columns gives a result as accurate as the basis' conditioning allows.
-    x_basic = tableau[:, rhs].copy()
-    basis_matrix = np.zeros((n, n))
-    for r, var in enumerate(basis):
-        if var < n:
-            basis_matrix[var, r] = 1.0
-        else:
-            basis_matrix[:, r] = -M_arr[:, var - n]
-    try:
-        refined = np.linalg.solve(basis_matrix, q_arr)
-    except np.linalg.LinAlgError:
-        refined = None
-    if refined is not None and np.all(np.isfinite(refined)):
-        x_basic = refined
-
-    z = np.zeros(n)
-    is_z = basis >= n
-    z[basis[is_z] - n] = x_basic[is_z]
-    # The basic values are >= 0 in exact arithmetic; what is left below zero is rounding.
-    return np.maximum(z, 0.0)
 
 
 def two_stop_matrix(G_dt: float) -> np.ndarray:
@@ -425,7 +173,13 @@ def two_stop_closed_form(G_dt: float, c1: float, c2: float) -> tuple[float, floa
             f"c1 + c2 must be >= 0 (the stops' clearances cannot sum to a negative value), got "
             f"c1={a!r}, c2={b!r}, c1 + c2={total!r}"
         )
-    return max(0.0, -a) / g, max(0.0, -b) / g
+    return two_stop_impulses(g, a, b)
+
+
+@njit(cache=True, nogil=True)
+def two_stop_impulses(g_dt, c1, c2):
+    """The closed form of :func:`two_stop_closed_form` without validation, for the kernels."""
+    return max(0.0, -c1) / g_dt, max(0.0, -c2) / g_dt
 
 
 # ---------------------------------------------------------------------------------------------
@@ -454,7 +208,7 @@ def lemke_workspace(n: int) -> tuple[np.ndarray, ...]:
     )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lex_pick_nb(T, n, cand, m, col, divide):
     """Row among ``cand[:m]`` with the lexicographically smallest [rhs, B⁻¹ row] (÷ pivot column).
 
@@ -485,7 +239,7 @@ def _lex_pick_nb(T, n, cand, m, col, divide):
     return cand[0]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pivot_nb(T, basis, row, col):
     p = T[row, col]
     ncol = T.shape[1]
@@ -503,9 +257,17 @@ def _pivot_nb(T, basis, row, col):
     basis[row] = col
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lemke_nb(M, q, T, basis, cand, Bm, xb, z, max_pivots):
-    """Compiled Lemke: the algorithm of :func:`lemke` (same pivots, ties and refinement).
+    """Lemke's algorithm for LCP(M, q): find ``z >= 0`` with ``w = M z + q >= 0``, ``z·w = 0``.
+
+    The problem is augmented with an artificial variable ``z0`` and the covering vector of ones;
+    from the almost-complementary basis where ``z0`` enters at ``-min(q)``, the complement of
+    the variable that just left enters next, until ``z0`` leaves (a solution) or the entering
+    column has no blocking row (ray termination). Ratio-test ties are broken
+    lexicographically by the rows of the basis inverse (no cycling on degenerate problems); the
+    artificial variable is preferred when tied. The final basis is re-solved with the original
+    data (partial pivoting) to remove the tableau's rounding.
 
     No input validation and no allocation: ``M`` (n × n) and ``q`` (n) must be finite, the
     workspace comes from :func:`lemke_workspace`. The solution is written to ``z``.

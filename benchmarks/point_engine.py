@@ -1,0 +1,154 @@
+"""How a point ends: the default solver against the paper's scheme on three spectra.
+
+    python benchmarks/point_engine.py [--points 40] [--out benchmarks/results] [--json]
+
+Three 40-point spectra, γ_r = 0.3 … 6, σ 0.05, γ_s 1, five modes:
+
+* A: paper coupling, θ 0.3, ξ 0.05, gaps 0.1;
+* B: paper coupling, θ 1, ξ 0.02, gaps 0.5;
+* C: full coupling, θ 0.3, ξ 0.05, gaps 0.3.
+
+Each point is run twice in the same process, one after the other: with the default
+``SolverSettings()`` and with the paper's scheme as published (semi-implicit Euler with Lemke's
+LCP at every step, Δτ = 1e-3, a fixed 150 periods, measured over the last 20). Time per point is
+the wall time of the whole ``simulate_point`` call (assembly, matrix exponentials, kernel), one
+core. Reports mean, median and worst time per point for both, their ratios, and how the default's
+points ended.
+
+Writes ``point_engine.md`` and ``point_engine.csv`` to the output folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import csv
+import json
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from worker.model import CellParams  # noqa: E402
+from worker.simulate import SolverSettings, simulate_point, warm_up  # noqa: E402
+
+SPECTRA = {
+    "A": dict(coupling="paper", theta=0.3, xi=0.05, g1=0.1, g2=0.1),
+    "B": dict(coupling="paper", theta=1.0, xi=0.02, g1=0.5, g2=0.5),
+    "C": dict(coupling="full", theta=0.3, xi=0.05, g1=0.3, g2=0.3),
+}
+PAPER_DT = 1e-3
+PAPER_PERIODS = 150
+PAPER_WINDOW = 20
+
+
+def cell(case: str, gamma_r: float) -> CellParams:
+    return CellParams(sigma=0.05, gamma_s=1.0, gamma_r=float(gamma_r), modes=5, **SPECTRA[case])
+
+
+def paper_settings(gamma_r: float) -> SolverSettings:
+    spp = round(2.0 * math.pi / gamma_r / PAPER_DT)
+    return SolverSettings(
+        method="euler", lcp="lemke", steps_per_period=spp, max_periods=PAPER_PERIODS,
+        window=PAPER_WINDOW, early_stop=False,
+    )  # fmt: skip
+
+
+def outcome_of(r) -> str:
+    """The point's outcome (``outcome`` where the result has it)."""
+    out = getattr(r, "outcome", None)
+    if out:
+        return str(out)
+    if r.failed:
+        return "failed"
+    return "periodic" if r.converged else "irregular"
+
+
+def timed(params: CellParams, settings: SolverSettings):
+    t0 = time.perf_counter()
+    r = simulate_point(params, settings)
+    return r, time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=40)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    ap.add_argument("--json", action="store_true", help="print a JSON summary line")
+    args = ap.parse_args()
+    gammas = np.linspace(0.3, 6.0, args.points)
+    default = SolverSettings()
+    warm_up(default.method)
+    warm_up("euler")
+    # compile the Lemke path before timing
+    simulate_point(cell("A", 1.0), dataclasses.replace(paper_settings(6.0), max_periods=3, window=1))
+
+    rows = []
+    for case in SPECTRA:
+        for g in gammas:
+            p = cell(case, g)
+            r, t = timed(p, default)
+            rp, tp = timed(p, paper_settings(g))
+            rows.append(
+                dict(
+                    case=case, gamma_r=float(g), outcome=outcome_of(r),
+                    db=r.transmittance_db, ms=t * 1e3, periods=r.periods,
+                    paper_db=rp.transmittance_db, paper_ms=tp * 1e3,
+                    paper_outcome=outcome_of(rp), reason=r.reason,
+                )
+            )  # fmt: skip
+    t_def = [r["ms"] for r in rows]
+    t_pap = [r["paper_ms"] for r in rows]
+    counts: dict[str, int] = {}
+    for r in rows:
+        counts[r["outcome"]] = counts.get(r["outcome"], 0) + 1
+    summary = dict(
+        method=default.method,
+        points=len(rows),
+        default_mean_ms=statistics.fmean(t_def),
+        default_median_ms=statistics.median(t_def),
+        default_max_ms=max(t_def),
+        paper_mean_ms=statistics.fmean(t_pap),
+        paper_median_ms=statistics.median(t_pap),
+        mean_ratio=statistics.fmean(t_pap) / statistics.fmean(t_def),
+        median_ratio=statistics.median(t_pap) / statistics.median(t_def),
+        outcomes=counts,
+    )
+    lines = [
+        f"Three {args.points}-point spectra (γ_r 0.3–6; A paper θ 0.3 ξ 0.05 gap 0.1, B paper "
+        "θ 1 ξ 0.02 gap 0.5, C full θ 0.3 ξ 0.05 gap 0.3), one core, whole `simulate_point` "
+        "call per point.",
+        "",
+        "| solver | mean ms/point | median ms/point | worst ms |",
+        "|---|---|---|---|",
+        f"| default ({default.method}) | {summary['default_mean_ms']:.2f} | "
+        f"{summary['default_median_ms']:.2f} | {summary['default_max_ms']:.1f} |",
+        f"| paper's scheme (euler + Lemke, Δτ 1e-3, 150 periods) | "
+        f"{summary['paper_mean_ms']:.1f} | {summary['paper_median_ms']:.1f} | {max(t_pap):.0f} |",
+        "",
+        f"Paper's scheme / default: mean {summary['mean_ratio']:.1f}×, "
+        f"median {summary['median_ratio']:.1f}×.",
+        "",
+        "Outcomes of the default: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())),
+    ]
+    text = "\n".join(lines) + "\n"
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "point_engine.md").write_text(text)
+    with open(args.out / "point_engine.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print(text)
+    if args.json:
+        print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

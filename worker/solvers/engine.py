@@ -1,0 +1,598 @@
+"""The point engine: how a point ends, the same for every method (docs/solvers.md).
+
+A point starts at its initial state (rest by default) and is advanced in batches of whole
+periods by its method's kernel (``base.KernelRun``). It ends as soon as what it would report
+is proven:
+
+``linear``
+    The linear tail test (``linear.py``) shows that the free motion from the current state can
+    never reach a stop again: the steady state is the closed form, reported exactly.
+``periodic``
+    A period-p orbit with impacts. When the stroboscopic sequence converges geometrically
+    (``measure.candidate``), the orbit is extrapolated from it (reduced rank extrapolation, the
+    vector-extrapolation method of periodic-steady-state analysis in circuit simulators) and
+    confirmed by integrating p periods from the extrapolated state: it must repeat to
+    ``periodicity_tol`` (allowing for the estimated contraction), have the same impacts per
+    period as the trajectory, and lie where the trajectory's own contraction is heading, so
+    only an orbit reached from the point's start is reported. A sequence that repeats by
+    itself (``measure.periodicity``) needs no extrapolation. The orbit is then measured over p
+    periods; the dominant Floquet multiplier is estimated from the sequence.
+``irregular``
+    Window statistics: Γ over each window of ``window`` periods; the initial transient is cut
+    by the MSER rule; the point ends when the standard error of the mean Γ (batch means with an
+    AR(1) correction) is below ``stat_tol_db`` over at least ``MIN_WINDOWS`` windows, and
+    impacts are still happening in the last quarter of the final window.
+``unsettled``
+    The period budget ran out first; the numbers are kept and labelled, never called irregular.
+``failed``
+    Not finite, diverged (``base.KernelRun.failure_reason``), no steady state (undamped), or a
+    method's own reason; values are ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from worker.model import System
+from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittance_db
+from worker.solvers import measure as ms
+from worker.solvers.base import KernelRun
+from worker.solvers.linear import LinearTail
+from worker.solvers.settings import PointResult, SolverSettings
+
+__all__ = ["DIVERGENCE_FACTOR", "MIN_WINDOWS", "mser_stats", "rre", "run_point"]
+
+DIVERGENCE_FACTOR = 1e6  # |x|∞ beyond this times the natural scale is divergence
+MIN_WINDOWS = 8  # windows of statistics before an irregular response may be reported
+MAX_TREND = 3.0  # t-statistic of the windows' trend above which Γ is still drifting
+RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
+MAX_CYCLES = 4  # extrapolate-and-confirm cycles per candidate
+MAX_FIT = 1e-2  # a first extrapolation must fit the sequence to this relative residual
+MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
+MEASURE_AFTER_WINDOWS = 2  # harmonics are accumulated from this window on (and on every orbit)
+TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
+
+
+# --------------------------------------------------------------------------- numerics
+
+
+def rre(X: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """Reduced rank extrapolation of a sequence ``X`` (rows oldest → newest, ≥ 3 of them).
+
+    Fits ``Σ γ_j u_j ≈ 0`` (``u_j = x_{j+1} - x_j``, ``Σ γ_j = 1``) by least squares and returns
+    ``(x*, ρ, fit)``: the limit ``Σ γ_j x_{j+1}``, the largest modulus among the roots of
+    ``Σ γ_j z^j`` (Ritz values of the map's Jacobian: the dominant multiplier), and the
+    residual ``|Σ γ_j u_j| / |u_newest|`` of the fit.
+    """
+    U = np.diff(X, axis=0)
+    k = U.shape[0]
+    if k < 2:
+        return None
+    base = U[-1]
+    nb = float(np.linalg.norm(base))
+    if nb == 0.0:
+        return X[-1].copy(), 0.0, 0.0
+    D = (U[:-1] - base).T
+    beta, *_ = np.linalg.lstsq(D, -base, rcond=1e-12)
+    gamma = np.append(beta, 1.0 - beta.sum())
+    if not np.all(np.isfinite(gamma)):
+        return None
+    xs = gamma @ X[1:]
+    fit = float(np.linalg.norm(gamma @ U)) / nb
+    roots = np.roots(gamma[::-1]) if np.any(gamma[1:] != 0.0) else np.zeros(0)
+    rho = float(np.max(np.abs(roots))) if roots.size else 0.0
+    return xs, rho, fit
+
+
+def mser_stats(y: np.ndarray) -> tuple[float, float | None, int, float]:
+    """Mean, standard error, start and trend t-statistic of the stationary part of ``y``.
+
+    The start ``d`` minimises the MSER statistic ``Var(y[d:]) / len(y[d:])`` over the first half
+    (White's marginal standard error rule for the initial transient). The standard error is
+    that of batch means, widened by ``√((1 + r₁)/(1 − r₁))`` for the lag-1 autocorrelation of
+    the window values (``r₁`` clipped to [0, 0.95]); ``None`` with fewer than 2 windows. The
+    trend statistic is the least-squares slope of ``y[d:]`` over its standard error (widened
+    the same way): a slow transient (a periodic orbit still being approached, a response
+    dying out) has a large one, a stationary irregular response a small one.
+    """
+    n = len(y)
+    if n == 0:
+        return math.nan, None, 0, 0.0
+    if n == 1:
+        return float(y[0]), None, 0, 0.0
+    rev = y[::-1]
+    s1 = np.cumsum(rev)[::-1]  # Σ y[d:]
+    s2 = np.cumsum(rev * rev)[::-1]
+    cnt = np.arange(n, 0, -1)  # n - d
+    var = np.maximum(s2 / cnt - (s1 / cnt) ** 2, 0.0)
+    half = n // 2 + 1
+    d = int(np.argmin(var[:half] / cnt[:half]))
+    z = y[d:]
+    m = len(z)
+    mean = float(z.mean())
+    if m < 2:
+        return mean, None, d, 0.0
+    dev = z - mean
+    ss = float(dev @ dev)
+    sd = math.sqrt(ss / (m - 1))
+    r1 = float(dev[1:] @ dev[:-1]) / ss if ss > 0.0 else 0.0
+    r1 = min(max(r1, 0.0), 0.95)
+    inflate = math.sqrt((1.0 + r1) / (1.0 - r1))
+    se = sd / math.sqrt(m) * inflate
+    trend = 0.0
+    if m >= 3:
+        i = np.arange(m) - (m - 1) / 2.0
+        slope = float(i @ dev) / float(i @ i)
+        resid = dev - slope * i
+        s_res = math.sqrt(float(resid @ resid) / (m - 2))
+        se_slope = s_res / math.sqrt(float(i @ i)) * inflate
+        trend = abs(slope) / se_slope if se_slope > 0.0 else (math.inf if slope else 0.0)
+    return mean, se, d, trend
+
+
+# --------------------------------------------------------------------------- windows
+
+
+@dataclass
+class _Windows:
+    """Per-window aggregates of the period rows (the irregular statistics)."""
+
+    window: int
+    gamma: list[float] = field(default_factory=list)
+    impacts: list[tuple[float, float]] = field(default_factory=list)
+    peak: list[float] = field(default_factory=list)
+    harm: list[np.ndarray] = field(default_factory=list)  # S_re, S_im, Sb_re, Sb_im, VV, VB
+    measured: list[bool] = field(default_factory=list)
+    last_impact: list[float] = field(default_factory=list)  # position in the window, -1 none
+    cur: np.ndarray = field(default_factory=lambda: np.zeros(ms.ROW))
+    count: int = 0
+    all_measured: bool = True
+
+    def __post_init__(self) -> None:
+        self._open()
+
+    def _open(self) -> None:
+        self.cur = np.zeros(ms.ROW)
+        self.cur[ms.M_SMAX] = -np.inf
+        self.cur[ms.M_SMIN] = np.inf
+        self.cur[ms.M_LAST_IMPACT] = -1.0
+        self.count = 0
+        self.all_measured = True
+
+    def add(self, rows: np.ndarray, base_scale: float) -> None:
+        """Add a batch of period rows (a batch never crosses a window boundary)."""
+        if not len(rows):
+            return
+        c = self.cur
+        c[ms.M_SMAX] = max(c[ms.M_SMAX], rows[:, ms.M_SMAX].max())
+        c[ms.M_SMIN] = min(c[ms.M_SMIN], rows[:, ms.M_SMIN].min())
+        c[ms.M_S_RE : ms.M_IMP2 + 1] += rows[:, ms.M_S_RE : ms.M_IMP2 + 1].sum(axis=0)
+        c[ms.M_PEAK] = max(c[ms.M_PEAK], rows[:, ms.M_PEAK].max())
+        hit = np.flatnonzero(rows[:, ms.M_LAST_IMPACT] >= 0.0)
+        if hit.size:
+            c[ms.M_LAST_IMPACT] = self.count + hit[-1] + rows[hit[-1], ms.M_LAST_IMPACT]
+        self.all_measured &= bool(rows[:, ms.M_MEASURED].all())
+        self.count += len(rows)
+        if self.count >= self.window:
+            self._close(base_scale)
+
+    def _close(self, base_scale: float) -> None:
+        c = self.cur
+        amp = 0.5 * (c[ms.M_SMAX] - c[ms.M_SMIN])
+        self.gamma.append(20.0 * math.log10(amp / base_scale) if amp > 0.0 else -math.inf)
+        self.impacts.append((c[ms.M_IMP1], c[ms.M_IMP2]))
+        self.peak.append(c[ms.M_PEAK])
+        self.harm.append(c[ms.M_S_RE : ms.M_VB + 1].copy())
+        self.measured.append(self.all_measured)
+        self.last_impact.append(c[ms.M_LAST_IMPACT])
+        self._open()
+
+    def __len__(self) -> int:
+        return len(self.gamma)
+
+
+# --------------------------------------------------------------------------- the engine
+
+
+@dataclass
+class _Orbit:
+    x0: np.ndarray  # the state at the orbit's start (forcing phase 0)
+    rows: np.ndarray  # p rows measured from x0
+    p: int
+    multiplier: float | None
+
+
+class _Engine:
+    def __init__(self, run: KernelRun, sys_: System, tail: LinearTail,
+                 settings: SolverSettings) -> None:  # fmt: skip
+        self.run = run
+        self.sys = sys_
+        self.p = sys_.params
+        self.tail = tail
+        self.s = settings
+        self.nx = run.nx
+        w = settings.window
+        self.rows = np.zeros((w, ms.ROW))
+        self.samples = np.zeros((w, self.nx))
+        self.recent = np.zeros((RECENT, self.nx))  # stroboscopic samples, newest last
+        self.recent_imp = np.zeros(RECENT)  # impacts in each of those periods
+        self.recent_reg = np.zeros(RECENT)
+        self.nrecent = 0
+        self.windows = _Windows(w)
+        self.period = 0  # periods of the main trajectory
+        self.work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
+        self.checks = (
+            (ms.CHECK_LINEAR if run.lin_gate > 0.0 else 0)
+            | ms.CHECK_PERIODIC
+            | (ms.CHECK_CANDIDATE if settings.extrapolate else 0)
+            | (ms.CHECK_QUIET if tail.usable else 0)
+        ) if settings.early_stop else 0  # fmt: skip
+        self.quiet_backoff = 1
+        self.backoff = 4
+
+    # ------------------------------------------------------------------ bookkeeping
+
+    def _absorb(self, rows: np.ndarray, samples: np.ndarray, main: bool) -> None:
+        n = len(rows)
+        self.work["periods"] += n
+        self.work["steps"] += int(rows[:, ms.M_STEPS].sum())
+        self.work["contact_steps"] += int(rows[:, ms.M_CONTACT].sum())
+        self.work["coarse_steps"] += int(rows[:, ms.M_COARSE].sum())
+        if not main or n == 0:
+            return
+        self.windows.add(rows, self.p.base_scale)
+        k = min(n, RECENT)
+        for arr, new in (
+            (self.recent, samples[n - k :]),
+            (self.recent_imp, rows[n - k :, ms.M_IMP1] + rows[n - k :, ms.M_IMP2]),
+            (self.recent_reg, rows[n - k :, ms.M_REGIME]),
+        ):
+            arr[: RECENT - k] = arr[k:]
+            arr[RECENT - k :] = new
+        self.nrecent = min(RECENT, self.nrecent + n)
+        self.period += n
+
+    def _side_run(self, x0: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Integrate n periods from x0 with measurement (the caller saves/restores the run)."""
+        self.run.reset(x0)
+        rows = np.zeros((n, ms.ROW))
+        samples = np.zeros((n, self.nx))
+        done, code, _ = self.run.advance(n, True, 0, rows, samples)
+        self._absorb(rows[:done], samples[:done], main=False)
+        if code != ms.END_NONE or done < n:
+            return None
+        return rows, samples
+
+    # ------------------------------------------------------------------ the main loop
+
+    def run_to_end(self) -> tuple[str, object]:
+        s = self.s
+        w = s.window
+        while self.period < s.max_periods:
+            n = min(w - self.period % w, s.max_periods - self.period)
+            measure = self.period >= MEASURE_AFTER_WINDOWS * w
+            done, code, p = self.run.advance(n, measure, self.checks, self.rows, self.samples)
+            self.rows[:done, ms.M_MEASURED] = 1.0 if measure else 0.0
+            self._absorb(self.rows[:done], self.samples[:done], main=True)
+            if code == ms.END_LINEAR:
+                return self._linear_or_undamped()
+            if code == ms.END_QUIET:
+                # impacts just stopped: try to prove they never come back
+                if self._tail_proven(self.run.x):
+                    return self._linear_or_undamped()
+                self.run.kst[ms.K_NEXT_QUIET] = self.run.kst[ms.K_PERIOD] + self.quiet_backoff
+                self.quiet_backoff = min(2 * self.quiet_backoff, 32)
+            elif code == ms.END_PERIODIC:
+                orbit = self._measure_orbit(self.run.x.copy(), p, self._sequence_rho(p))
+                if orbit is not None:
+                    return self._classify_orbit(orbit)
+            elif code == ms.END_CANDIDATE:
+                orbit = self._extrapolate(p)
+                if orbit is not None:
+                    return self._classify_orbit(orbit)
+                # back off: try again after a few more periods of contraction
+                self.run.kst[ms.K_NEXT_TRY] = self.run.kst[ms.K_PERIOD] + self.backoff
+                self.backoff = min(2 * self.backoff, 64)
+            elif code != ms.END_NONE:
+                return "failed", self.run.failure_reason(code)
+            if self.period % w == 0 and self.checks and self._irregular_converged():
+                return "irregular", None
+        return self._at_budget()
+
+    # ------------------------------------------------------------------ outcomes
+
+    def _linear_or_undamped(self) -> tuple[str, object]:
+        if self.tail.damped:
+            return "linear", None
+        return "failed", _undamped_reason(self.tail, self.period)
+
+    def _tail_proven(self, x: np.ndarray) -> bool:
+        if not (self.checks & ms.CHECK_LINEAR):
+            return False
+        T = 2.0 * math.pi / self.p.gamma_r
+        horizon = min(TAIL_HORIZON, max(self.s.max_periods - self.period, 1)) * T
+        return self.tail.proves(x, horizon)
+
+    def _sequence_rho(self, p: int) -> float | None:
+        """Contraction per p periods seen in the newest samples (d1/d2)."""
+        if self.nrecent < 2 * p + 1:
+            return None
+        r = self.recent
+        d1 = np.max(np.abs(r[-1] - r[-1 - p]))
+        d2 = np.max(np.abs(r[-1 - p] - r[-1 - 2 * p]))
+        return float(d1 / d2) if d2 > 0.0 else 0.0
+
+    def _measure_orbit(self, x0: np.ndarray, p: int, rho: float | None) -> _Orbit | None:
+        snap = self.run.save()
+        got = self._side_run(x0, p)
+        self.run.restore(snap)
+        if got is None:
+            return None
+        return _Orbit(x0.copy(), got[0], p, rho)
+
+    def _extrapolate(self, p: int) -> _Orbit | None:
+        """Extrapolate the p-periodic limit of the sequence, then confirm it by integration."""
+        avail = self.nrecent // p
+        if avail < 4:
+            return None
+        # newest first: sample indices p apart; keep those on the newest sample's branch of the
+        # map (same impacts over the p periods before it, same contact state at it)
+        idx = list(range(RECENT - 1, RECENT - 1 - p * min(avail, MAX_RRE), -p))
+        blocks = [self.recent_imp[i - p + 1 : i + 1].sum() for i in idx]
+        regs = [self.recent_reg[i] for i in idx]
+        keep = 1
+        while keep < len(idx) and blocks[keep] == blocks[0] and regs[keep] == regs[0]:
+            keep += 1
+        if keep < 3:
+            return None
+        X = self.recent[idx[:keep][::-1]]
+        d1 = float(np.max(np.abs(X[-1] - X[-2])))
+        fit = rre(X)
+        if fit is None or fit[2] > MAX_FIT or fit[1] >= 0.999:
+            return None  # the sequence is not (yet) a linear contraction: no side runs
+        rho0 = fit[1]
+        snap = self.run.save()
+        try:
+            r_prev = math.inf
+            for _ in range(MAX_CYCLES):
+                if fit is None:
+                    return None
+                xs, rho, _ = fit
+                rho = min(max(rho, rho0), 0.999)
+                if not np.all(np.isfinite(xs)):
+                    return None
+                got = self._side_run(xs, p)
+                if got is None:
+                    return None
+                rows, samples = got
+                scale = float(np.max(np.abs(xs)))
+                r = float(np.max(np.abs(samples[-1] - xs)))
+                if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() != blocks[0]:
+                    return None  # another branch of the map: not the orbit being approached
+                if r <= self.s.periodicity_tol * scale * (1.0 - rho):
+                    e = float(np.max(np.abs(X[-1] - xs)))
+                    # where the trajectory's own contraction is heading (10× slack)
+                    if e <= 10.0 * d1 / (1.0 - rho) + self.s.periodicity_tol * scale:
+                        # a p-periodic fixed point may be q-periodic, q | p
+                        q = next(q for q in range(1, p + 1) if p % q == 0 and (
+                            q == p or np.max(np.abs(samples[q - 1] - xs))
+                            <= 10.0 * self.s.periodicity_tol * scale))  # fmt: skip
+                        return _Orbit(xs.copy(), rows, q, rho)
+                    return None
+                if r > 0.5 * r_prev:
+                    return None  # the cycles stopped converging
+                r_prev = r
+                # continue the sequence from x* and extrapolate again
+                Y = [xs, samples[-1]]
+                for _ in range(len(X) - 2):
+                    got = self._side_run(Y[-1], p)
+                    if got is None:
+                        return None
+                    Y.append(got[1][-1])
+                fit = rre(np.array(Y))
+            return None
+        finally:
+            self.run.restore(snap)
+
+    def _classify_orbit(self, orbit: _Orbit) -> tuple[str, object]:
+        rows = orbit.rows
+        if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() == 0 and self.tail.proves(
+            orbit.x0, TAIL_HORIZON * 2.0 * math.pi / self.p.gamma_r
+        ):
+            return self._linear_or_undamped()
+        return "periodic", orbit
+
+    def _irregular_converged(self) -> bool:
+        win = self.windows
+        # Transient chaos can look stationary for hundreds of periods before it settles on an
+        # orbit: an irregular response is claimed only after a quarter of the budget.
+        if len(win) < MIN_WINDOWS or self.period < self.s.max_periods // 4:
+            return False
+        if not self._impacts_continue():
+            return False
+        return self._stats_converged()
+
+    def _stats_converged(self) -> bool:
+        """Enough stationary windows, no trend, standard error within the tolerance."""
+        win = self.windows
+        mean, se, d, trend = mser_stats(np.array(win.gamma))
+        return (se is not None and len(win) - d >= MIN_WINDOWS and se <= self.s.stat_tol_db
+                and trend <= MAX_TREND)  # fmt: skip
+
+    def _impacts_continue(self) -> bool:
+        win = self.windows
+        return sum(win.impacts[-1]) > 0 and win.last_impact[-1] >= 0.75 * win.window
+
+    def _at_budget(self) -> tuple[str, object]:
+        """The budget ran out (or early stop was off): classify what the run shows."""
+        run = self.run
+        x = run.x.copy()
+        if self.tail.proves(x, TAIL_HORIZON * 2.0 * math.pi / self.p.gamma_r):
+            return self._linear_or_undamped()
+        n = min(self.nrecent, ms.RING)
+        if n >= 3:
+            ring = np.zeros((ms.RING, self.nx))
+            last = self.period
+            for j in range(n):
+                ring[(last - j) % ms.RING] = self.recent[RECENT - 1 - j]
+            p = ms.periodicity(ring, n, last, x, self.s.periodicity_tol, self.nx)
+            if p > 0:
+                orbit = self._measure_orbit(x, p, self._sequence_rho(p))
+                if orbit is not None:
+                    return self._classify_orbit(orbit)
+        if self.tail.steady is None and self.windows.impacts and sum(self.windows.impacts[-1]) == 0:
+            return "failed", (
+                f"no steady state: undamped resonance (γ_r = {self.p.gamma_r:g} on a natural "
+                f"frequency with ξ = ξ_b = 0): the response grows without bound and no impact "
+                f"limited it within {self.period} periods"
+            )
+        if len(self.windows) and self._impacts_continue() and self._stats_converged():
+            return "irregular", None
+        return "unsettled", self._unsettled_reason()
+
+    def _unsettled_reason(self) -> str:
+        win = self.windows
+        what = f"the budget of {self.s.max_periods} periods ran out"
+        if not len(win):
+            return what + " before a whole window was measured"
+        if sum(win.impacts[-1]) == 0:
+            return what + ": no impacts in the final window, but the linear tail is not proven"
+        if not self._impacts_continue():
+            return what + ": impacts stopped inside the final window (a transient)"
+        mean, se, d, trend = mser_stats(np.array(win.gamma))
+        if se is None or len(win) - d < MIN_WINDOWS:
+            return what + f" with {len(win) - d} stationary windows (< {MIN_WINDOWS})"
+        if trend > MAX_TREND:
+            return what + f": Γ still drifts over the windows (trend t = {trend:.3g}), a slow transient"
+        return what + f": standard error of Γ {se:.3g} dB > {self.s.stat_tol_db:g} dB"
+
+
+# --------------------------------------------------------------------------- results
+
+
+def _undamped_reason(tail: LinearTail, period: int) -> str:
+    return (
+        f"no steady state: the cell is undamped (largest Re λ = {tail.max_re:.3g}) and from "
+        f"period {period} on the tip provably never reaches a stop, so its free vibration "
+        "never decays"
+    )
+
+
+def _finite_or_none(v: float | None) -> float | None:
+    return v if v is not None and math.isfinite(v) else None
+
+
+def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
+              settings: SolverSettings, x0: np.ndarray,
+              history_periods: int = 0) -> PointResult:  # fmt: skip
+    """Run one point to its proven end and build its result (see the module docstring).
+
+    ``make_run`` prepares the method's kernel run; it is not called for a point whose start is
+    already proven to be in the linear tail (unless a history is asked for)."""
+    t0 = time.perf_counter()
+    p = sys_.params
+    T = 2.0 * math.pi / p.gamma_r
+    run: KernelRun | None = None
+    eng: _Engine | None = None
+    horizon = min(TAIL_HORIZON, settings.max_periods) * T
+    if settings.early_stop and tail.proves(x0, horizon):
+        # the start is already in the linear tail: nothing to simulate
+        outcome, info = ("linear", None) if tail.damped else ("failed", _undamped_reason(tail, 0))
+        work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
+        steady_period = 0
+    else:
+        run = make_run()
+        run.reset(x0)
+        eng = _Engine(run, sys_, tail, settings)
+        if history_periods and not settings.early_stop:
+            run.keep_history(history_periods * run.history_rows_per_period())
+        outcome, info = eng.run_to_end()
+        work = eng.work
+        steady_period = eng.period
+    common = dict(
+        periods=work["periods"], steps=work["steps"], contact_steps=work["contact_steps"],
+        coarse_steps=work["coarse_steps"], steady_period=steady_period,
+        method=settings.method, steps_per_period=run.spp if run is not None else 0,
+    )  # fmt: skip
+    kappa, theta = sys_.kappa, p.theta
+    history_start: np.ndarray | None = None
+    if outcome == "failed":
+        res = PointResult.failure(settings.method, str(info), **common)
+    elif outcome == "linear":
+        ss = tail.steady
+        assert ss is not None
+        res = PointResult(
+            outcome="linear", transmittance_db=ss.transmittance_db, transmittance_db_se=None,
+            amplitude=ss.amplitude, theta_eff=ss.theta_eff, theta_eff_slope=ss.theta_eff,
+            response_period=1, impacts_per_period=(0.0, 0.0), peak_impulse=0.0,
+            floquet_multiplier=math.exp(tail.max_re * T), wall_s=0.0, reason="", **common,
+        )  # fmt: skip
+        history_start = tail.xp0
+    elif outcome == "periodic":
+        orbit: _Orbit = info  # type: ignore[assignment]
+        rows = orbit.rows
+        amp = 0.5 * (rows[:, ms.M_SMAX].max() - rows[:, ms.M_SMIN].min())
+        h = rows[:, ms.M_S_RE : ms.M_VB + 1].sum(axis=0)
+        res = PointResult(
+            outcome="periodic",
+            transmittance_db=transmittance_db(amp, p.base_scale) if amp > 0 else None,
+            transmittance_db_se=None, amplitude=float(amp),
+            theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
+            theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
+            response_period=orbit.p,
+            impacts_per_period=(float(rows[:, ms.M_IMP1].sum() / len(rows)),
+                                float(rows[:, ms.M_IMP2].sum() / len(rows))),
+            peak_impulse=float(rows[:, ms.M_PEAK].max()),
+            floquet_multiplier=_finite_or_none(orbit.multiplier), wall_s=0.0, reason="",
+            **common,
+        )  # fmt: skip
+        if res.transmittance_db is None:
+            res = PointResult.failure(settings.method, "no motion of the outer mass", **common)
+        history_start = orbit.x0
+    else:
+        assert eng is not None and run is not None
+        res = _statistics_result(eng, outcome, str(info or ""), common, kappa, theta)
+        history_start = run.x.copy()
+    if history_periods and outcome != "failed" and settings.early_stop:
+        if run is None:
+            run = make_run()
+        run.reset(history_start)
+        run.keep_history(history_periods * run.history_rows_per_period())
+        rows = np.zeros((history_periods, ms.ROW))
+        samples = np.zeros((history_periods, run.nx))
+        run.advance(history_periods, False, 0, rows, samples)
+    if history_periods and run is not None:
+        res.history = run.history(p, kappa)
+    res.wall_s = time.perf_counter() - t0
+    return res
+
+
+def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
+                       kappa: float, theta: float) -> PointResult:  # fmt: skip
+    """Γ, its standard error and the rest from the window statistics (irregular, unsettled)."""
+    win = eng.windows
+    p = eng.p
+    if not len(win):
+        return PointResult.failure(eng.s.method, reason or "no window measured", **common)
+    y = np.array(win.gamma)
+    mean, se, d, _ = mser_stats(y)
+    if not math.isfinite(mean):
+        return PointResult.failure(eng.s.method, "no motion of the outer mass", **common)
+    span = range(d, len(win))
+    h = sum((win.harm[i] for i in span if win.measured[i]), np.zeros(6))
+    imp = win.impacts[-1]
+    return PointResult(
+        outcome=outcome, transmittance_db=float(mean), transmittance_db_se=_finite_or_none(se),
+        amplitude=float(p.base_scale * 10.0 ** (mean / 20.0)),
+        theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
+        theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
+        response_period=0,
+        impacts_per_period=(float(imp[0] / win.window), float(imp[1] / win.window)),
+        peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
+        wall_s=0.0, reason=reason, **common,
+    )  # fmt: skip

@@ -1,0 +1,191 @@
+"""``method: euler``: the paper's semi-implicit Euler scheme with impulses (Eqs. 13, 31).
+
+Per step: the free velocity ``q_f = q + Δτ M⁻¹(-C q - K u + e_s f)``, the predicted gaps, the
+two-stop LCP (closed form, or Lemke's algorithm at every step with ``lcp="lemke"``, as
+published), then ``q ← q_f + M⁻¹X(-Λ1 + Λ2)`` and ``u ← u + q Δτ``. First harmonics and the
+phase-portrait integrals are the rectangle rule on the scheme's own samples.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from worker.model import System
+from worker.solvers import measure as ms
+from worker.solvers.base import KernelRun
+from worker.solvers.lcp import LEMKE_OK, lemke_nb, lemke_workspace, two_stop_impulses
+from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
+from worker.solvers.stepping import step_end
+
+DEFAULT_STEPS = 1024
+
+
+@njit(cache=True, nogil=True)
+def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, spp,
+                 gamma_r, f_scale, MinvC, MinvK, Minv_es, MinvX, f_sin, f_cos, W, d, G, g1, g2,
+                 use_lemke, lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z,
+                 lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, xn):  # fmt: skip
+    """Advance up to ``n_periods`` periods; returns (periods done, END code, period found)."""
+    nx = x.shape[0]
+    N = nx // 2
+    n = N - 1
+    T = 2.0 * math.pi / gamma_r
+    dt = T / spp
+    if use_lemke:
+        gdt = G * dt
+        lcp_M[0, 0] = gdt
+        lcp_M[0, 1] = -gdt
+        lcp_M[1, 0] = -gdt
+        lcp_M[1, 1] = gdt
+    for k in range(n_periods):
+        ms.begin_row(rows, k)
+        period = kst[ms.K_PERIOD]
+        for js in range(spp):
+            cph = math.cos(gamma_r * js * dt)
+            sph = math.sin(gamma_r * js * dt)
+            s0 = x[n]
+            v0 = x[N + n]
+            fval = f_scale * (f_sin * sph + f_cos * cph)
+            for i in range(N):
+                acc = Minv_es[i] * fval
+                for j in range(N):
+                    acc -= MinvC[i, j] * x[N + j] + MinvK[i, j] * x[j]
+                xn[N + i] = x[N + i] + dt * acc
+            wpred = 0.0
+            for i in range(N):
+                wpred += W[i] * (x[i] + dt * xn[N + i])
+            c1 = g1 - wpred
+            c2 = g2 + wpred
+            if use_lemke:
+                lcp_q[0] = c1
+                lcp_q[1] = c2
+                status = lemke_nb(lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand, lcp_B, lcp_xb,
+                                  lcp_z, 50)  # fmt: skip
+                if status != LEMKE_OK:  # no solution: the state becomes non-finite, the
+                    lcp_z[0] = np.nan  # point fails with that reason
+                l1 = lcp_z[0]
+                l2 = lcp_z[1]
+            else:
+                l1, l2 = two_stop_impulses(G * dt, c1, c2)
+            P = l2 - l1
+            for i in range(N):
+                xn[N + i] += MinvX[i] * P
+                xn[i] = x[i] + dt * xn[N + i]
+            if measure:
+                # the rectangle rule over whole periods: the DFT of the scheme's own samples
+                sbv = ms.dot(d, x, n)
+                rows[k, ms.M_S_RE] += dt * x[n] * cph
+                rows[k, ms.M_S_IM] -= dt * x[n] * sph
+                rows[k, ms.M_SB_RE] += dt * sbv * cph
+                rows[k, ms.M_SB_IM] -= dt * sbv * sph
+            for i in range(nx):
+                x[i] = xn[i]
+            if measure:
+                v1 = x[N + n]
+                rows[k, ms.M_VV] += dt * v1 * v1
+                rows[k, ms.M_VB] += dt * ms.dot(d, x[N:], n) * v1
+            step_end(rows, k, kst, hist, xh, s0, v0, x[n], x[N + n], dt, l1, l2, js / spp,
+                     period * T + (js + 1) * dt, x, nx, W, d, N, n, g1, g2)  # fmt: skip
+        kst[ms.K_PERIOD] += 1.0
+        rows[k, ms.M_REGIME] = kst[ms.K_CONTACT]
+        code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
+                                lin_gate, checks, div_limit, tol)  # fmt: skip
+        if code != ms.END_NONE:
+            return k + 1, code, p
+    return n_periods, ms.END_NONE, 0
+
+
+def _radius(sys_: System, dt: float) -> float:
+    """Spectral radius of the scheme's free-flight step matrix."""
+    n = sys_.ndof
+    MK = sys_.Minv @ sys_.K
+    MC = sys_.Minv @ sys_.C
+    eye = np.eye(n)
+    Q = eye - dt * MC
+    A = np.block([[eye - dt * dt * MK, dt * Q], [-dt * MK, Q]])
+    return float(np.max(np.abs(np.linalg.eigvals(A))))
+
+
+def largest_stable_step(sys_: System, dt: float) -> float:
+    """Bisection on (0, dt] for the largest step with spectral radius <= 1 (dt is unstable)."""
+    lo, hi = 0.0, dt
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _radius(sys_, mid) > 1.0 + 1e-9:
+            hi = mid
+        else:
+            lo = mid
+    return lo
+
+
+def check_stable(sys_: System, dt: float) -> None:
+    """Refuse Euler steps beyond the stability limit, naming the largest stable step."""
+    wmax = sys_.omega_max()
+    limit = 2.0 / wmax
+    period = 2.0 * math.pi / sys_.params.gamma_r
+    if dt * wmax >= 2.0:
+        raise ValueError(
+            f"steps_per_period gives Δτ = {dt:.6g} with Δτ·ω̃_max = {dt * wmax:.4g} >= 2: the "
+            f"euler scheme is unstable; the largest stable step is Δτ < {limit:.6g} "
+            f"(ω̃_max = {wmax:.6g}), i.e. steps_per_period > {period / limit:.1f}"
+        )
+    # Damping is explicit in the scheme: heavily damped high modes can be unstable below 2/ω.
+    if _radius(sys_, dt) > 1.0 + 1e-9:
+        raise ValueError(
+            f"steps_per_period gives Δτ = {dt:.6g}, unstable for the euler scheme with this "
+            f"damping; the largest stable step is Δτ ≈ {largest_stable_step(sys_, dt):.6g}"
+        )
+
+
+def default_steps(sys_: System) -> int:
+    """Default Euler resolution: 1024 per period, or enough for Δτ·ω̃_max <= 1.
+
+    Where explicit damping of stiff modes makes that step unstable, half the largest stable
+    step (the same factor 2 of margin), so the default is never refused for stability.
+    """
+    T = 2.0 * math.pi / sys_.params.gamma_r
+    n = max(DEFAULT_STEPS, math.ceil(T * sys_.omega_max()))
+    if _radius(sys_, T / n) > 1.0 + 1e-9:
+        n = math.ceil(2.0 * T / largest_stable_step(sys_, T / n))
+    return n
+
+
+class EulerRun(KernelRun):
+    """A point integrated by the paper's scheme."""
+
+    name = "euler"
+
+    def __init__(self, sys_: System, settings: SolverSettings, *args) -> None:
+        super().__init__(sys_, settings, *args)
+        p = sys_.params
+        spp = settings.steps_per_period or default_steps(sys_)
+        if spp > MAX_STEPS_PER_PERIOD:
+            # only a default can get here (an explicit value is validated): refuse, don't hang
+            raise ValueError(
+                f"the euler scheme needs steps_per_period >= {spp} here (Δτ·ω̃_max <= 1, "
+                f"ω̃_max = {sys_.omega_max():.6g}), more than the limit {MAX_STEPS_PER_PERIOD}; "
+                f"use method exponential or event"
+            )
+        check_stable(sys_, 2.0 * math.pi / p.gamma_r / spp)
+        self.spp = spp
+        Minv = sys_.Minv
+        c = np.ascontiguousarray
+        self.arrays = (
+            spp, p.gamma_r, self.f_scale, c(Minv @ sys_.C), c(Minv @ sys_.K), c(Minv[:, -1]),
+            c(Minv @ sys_.X), sys_.f_sin, sys_.f_cos, sys_.W, sys_.d, sys_.G, p.g1, p.g2,
+            settings.lcp == "lemke", np.zeros((2, 2)), np.zeros(2), *lemke_workspace(2),
+        )  # fmt: skip
+        self.xn = np.zeros(self.nx)
+
+    def _advance(self, n, measure, checks, rows, samples):
+        return euler_kernel(
+            self.x, self.kst, self.ring, n, measure, checks, rows, samples, self.hist, self.xh,
+            *self.arrays, self.lin_L, self.lin_xp, self.lin_amp, self.lin_gate, self.div_limit,
+            self.tol, self.xn,
+        )  # fmt: skip
+
+    def history_rows_per_period(self) -> int:
+        return self.spp + 8

@@ -1,0 +1,1 @@
+"""``method: event``: the event-driven solver (roots, regimes, kernel, driver)."""

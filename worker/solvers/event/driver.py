@@ -1,0 +1,114 @@
+"""The event solver's run: preparation, reset from a full state, and its own failure reasons."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from worker.model import System
+from worker.solvers import measure as ms
+from worker.solvers.base import KernelRun
+from worker.solvers.event import kernel as ek
+from worker.solvers.event.regimes import MAX_COND, prepare_event
+from worker.solvers.event.roots import STACK
+from worker.solvers.settings import SolverSettings, int_in
+
+DEFAULT_GRID = 64
+DEFAULT_EVENT_TOL = 1e-12
+DEFAULT_MAX_EVENTS_PER_PERIOD = 1000
+
+
+class EventRun(KernelRun):
+    """A point integrated event by event (``docs/solvers.md``).
+
+    ``steps_per_period`` is the sub-grid of event brackets (default 64; it sets the cost, not
+    the answer). ``event_tol`` is the event-time tolerance relative to the period (Newton is
+    stopped below it and polished once more). ``max_events_per_period`` ends a chattering run.
+    """
+
+    name = "event"
+
+    def __init__(self, sys_: System, settings: SolverSettings, *args,
+                 event_tol: float = DEFAULT_EVENT_TOL,
+                 max_events_per_period: int = DEFAULT_MAX_EVENTS_PER_PERIOD) -> None:  # fmt: skip
+        super().__init__(sys_, settings, *args)
+        if isinstance(event_tol, bool) or not isinstance(event_tol, (int, float)) or not (
+            0.0 < event_tol < 1e-2
+        ):
+            raise ValueError(f"event_tol must be in (0, 0.01), got {event_tol!r}")
+        self.max_events = int_in("max_events_per_period", max_events_per_period, 1, 10**9)
+        p = sys_.params
+        N = sys_.ndof
+        nzm = 2 * N + 2
+        self.spp = settings.steps_per_period or DEFAULT_GRID
+        ea = prepare_event(sys_, self.spp)
+        if ea.cond > MAX_COND:
+            raise ValueError(
+                f"event solver: a regime's eigenvector matrix is too ill-conditioned "
+                f"(cond {ea.cond:.3g} > {MAX_COND:.0e}; e.g. a defective, undamped system)"
+            )
+        self.ea = ea
+        self.bilateral = p.g1 + p.g2 <= 0.0
+        self.h = 2.0 * np.pi / p.gamma_r / self.spp
+        self.y = np.zeros(nzm)
+        self.evlog = np.zeros((0, ek.EV_COLS))
+        self.arrays = (
+            ea.nzr, ea.nk, ea.Phi, ea.eh, ea.lam, ea.V, ea.Vi, ea.wt, ea.R, ea.RV, ea.Pin,
+            ea.Qout, ea.psi, ea.gl, sys_.W, np.ascontiguousarray(sys_.Minv @ sys_.X), sys_.G,
+            p.g1, p.g2, self.bilateral, N, self.spp, p.gamma_r, self.f_scale,
+            settings.near_margin, float(event_tol), self.max_events,
+        )  # fmt: skip
+        self.work = (
+            np.zeros(nzm), np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex),
+            np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex),
+            np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex), np.zeros(nzm),
+            np.zeros((STACK, 6)), np.zeros(nzm),
+        )  # fmt: skip
+
+    def _reset(self) -> None:
+        nx = self.nx
+        self.y[:nx] = self.x
+        self.y[nx] = self.f_scale
+        self.y[nx + 1] = 0.0
+        ea = self.ea
+        _, _, a, _, _, cw, _, _, _, _ = self.work
+        ek.start_state(self.y, self.kst, ea.R, ea.RV, ea.Vi, ea.lam, ea.nk, self.bilateral,
+                       self.sys.ndof, self.sys.params.g1, self.sys.params.g2, self.h, a,
+                       cw)  # fmt: skip
+
+    def _save(self) -> object:
+        return self.y.copy()
+
+    def _restore(self, extra: object) -> None:
+        self.y[:] = extra  # type: ignore[index]
+
+    def keep_history(self, cap: int) -> None:
+        super().keep_history(cap)
+        self.evlog = np.zeros((cap, ek.EV_COLS))
+        self.kst[ek.K_EVLOG] = 0.0
+
+    def history_rows_per_period(self) -> int:
+        return self.spp + 64
+
+    def history(self, params, kappa: float) -> dict[str, np.ndarray]:
+        out = super().history(params, kappa)
+        count = int(self.kst[ek.K_EVLOG])
+        cap = self.evlog.shape[0]
+        order = np.r_[count % cap : cap, 0 : count % cap] if count > cap else np.arange(count)
+        out["events"] = self.evlog[order]
+        return out
+
+    def _advance(self, n, measure, checks, rows, samples):
+        return ek.event_kernel(
+            self.y, self.x, self.kst, self.ring, n, measure, checks, rows, samples, self.hist,
+            self.xh, self.evlog, *self.arrays, self.lin_L, self.lin_xp, self.lin_amp,
+            self.lin_gate, self.div_limit, self.tol, *self.work,
+        )  # fmt: skip
+
+    def failure_reason(self, code: int) -> str:
+        period = int(self.kst[ms.K_PERIOD])
+        if code == ms.END_CHATTER:
+            return (
+                f"event budget exceeded: more than {self.max_events} events in period {period} "
+                f"(chattering)"
+            )
+        return super().failure_reason(code)

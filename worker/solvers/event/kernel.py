@@ -1,0 +1,674 @@
+"""The event-driven kernel: whole periods of exact regime propagation between located events.
+
+Per sub-grid interval ``h = T/n_grid`` of the current regime (``regimes.py``):
+
+* a cheap test first: the cubic Hermite interpolant of the tip (free flight) or of the contact
+  force (stuck) from both ends, widened by ``h⁴/384·|f⁗|`` at the ends, must stay
+  ``near_margin`` clear of the stop (of zero force, relative to the force); the interval is
+  then taken whole with the precomputed step map;
+* otherwise an exact search of the gap or contact force (``roots.first_root``) over the rest
+  of the interval; the piece up to the first event is propagated exactly and the event is
+  applied: at an impact the plastic impulse ``P = -Wᵀq/G`` along ``M⁻¹X`` zeroes the tip's
+  velocity and the tip sticks if the stuck regime's contact force is compressive (or zero and
+  increasing), else it leaves at once; a stuck tip is released where the force reaches zero.
+  After leaving a stop the search for it starts once the gap has opened above round-off
+  (``roots.skip_start``), so a release is never taken for a new impact;
+* a per-period event budget ends a run that chatters.
+
+Each period fills one row of the measurement layout (``measure.py``). The extrema of ``s`` are
+located exactly (Newton on ``ṡ = 0``) when measuring, else taken from the Hermite
+interpolant; the first harmonics are exact integrals; the phase-portrait integrals use four
+Gauss nodes per piece.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+import numpy as np
+from numba import njit
+
+from worker.solvers import measure as ms
+from worker.solvers.event import roots as rt
+from worker.solvers.event.regimes import (
+    R_MU,
+    R_MU4,
+    R_MUD,
+    R_S,
+    R_SB,
+    R_SBD,
+    R_SD,
+    R_W,
+    R_W4,
+    R_WD,
+)
+
+# A state beyond this size ends the run (diverged): the search's error bounds (|c|·|λ|⁴·h⁴)
+# overflow well before the state does, and a search on non-finite values never proves an
+# interval clear (it would split ~4¹⁵ times per interval, i.e. hang).
+MAX_STATE = 1e200
+
+# Reassociation lets LLVM vectorise the small dot products and matrix-vector products (a
+# different summation order, never NaN/inf assumptions).
+FAST = {"reassoc", "contract"}
+
+# kernel state entries (after the common ones of measure.py)
+K_REGIME = ms.K_METHOD  # 0 free, 1/2 stuck on stop 1/2
+K_SKIP_ON = ms.K_METHOD + 1  # the search of the current constraint starts late
+K_SKIP_STOP = ms.K_METHOD + 2
+K_SKIP_REM = ms.K_METHOD + 3
+K_PENDING = ms.K_METHOD + 4  # >0: impact at once at this stop; <0: stick-or-leave after one
+K_EVLOG = ms.K_METHOD + 5  # event log rows written
+
+EV_COLS = 5  # event log: τ, kind (1 impact, 2 release), stop, residual, impulse
+
+# ----------------------------------------------------------------------------- state helpers
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _modal(Vi, r, y, nk, nz, a):
+    for i in range(nk):
+        acc = 0.0 + 0.0j
+        for j in range(nz):
+            acc += Vi[r, i, j] * y[j]
+        a[i] = acc
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _state_at(V, lam, r, a, nk, nz, t, out, tmp):
+    for k in range(nk):
+        tmp[k] = a[k] * cmath.exp(lam[r, k] * t)
+    for i in range(nz):
+        acc = 0.0
+        for k in range(nk):
+            acc += (V[r, i, k] * tmp[k]).real
+        out[i] = acc
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _state_E(V, r, a, E, nk, nz, out):
+    for i in range(nz):
+        acc = 0.0
+        for k in range(nk):
+            acc += (V[r, i, k] * (a[k] * E[k])).real
+        out[i] = acc
+
+
+@njit(cache=True, nogil=True)
+def _coef(RV, r, row, a, nk, sgn, c):
+    for k in range(nk):
+        c[k] = sgn * RV[r, row, k] * a[k]
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _row(R, r, row, y, nz):
+    acc = 0.0
+    for i in range(nz):
+        acc += R[r, row, i] * y[i]
+    return acc
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _row_scale(R, r, row, y, nz):
+    acc = 0.0
+    for i in range(nz):
+        acc += abs(R[r, row, i] * y[i])
+    return acc
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _matvec(A, r, y, nz, out):
+    for i in range(nz):
+        acc = 0.0
+        for j in range(nz):
+            acc += A[r, i, j] * y[j]
+        out[i] = acc
+
+
+@njit(cache=True, nogil=True)
+def full_state(r, y, Qout, N, x):
+    """The full state x = [u; q] of the regime state y."""
+    nzm = 2 * N + 2
+    if r == 0:
+        for i in range(2 * N):
+            x[i] = y[i]
+        return
+    for i in range(2 * N):
+        acc = 0.0
+        for j in range(nzm - 1):
+            acc += Qout[r - 1, i, j] * y[j]
+        x[i] = acc
+
+
+@njit(cache=True, nogil=True)
+def _record(hist, xh, kst, tau, R, r, y, nz, l1, l2, kind, Qout, N, x):
+    if hist.shape[0] == 0:
+        return
+    full_state(r, y, Qout, N, x)
+    ms.record(hist, xh, kst, tau, _row(R, r, R_S, y, nz), _row(R, r, R_W, y, nz),
+              _row(R, r, R_SB, y, nz), _row(R, r, R_SD, y, nz), _row(R, r, R_SBD, y, nz), l1,
+              l2, kind, x, 2 * N)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _log_event(evlog, kst, tau, kind, stop, resid, impulse):
+    cap = evlog.shape[0]
+    if cap == 0:
+        return
+    k = int(kst[K_EVLOG]) % cap
+    evlog[k, 0] = tau
+    evlog[k, 1] = kind
+    evlog[k, 2] = stop
+    evlog[k, 3] = resid
+    evlog[k, 4] = impulse
+    kst[K_EVLOG] += 1.0
+
+
+# ----------------------------------------------------------------------------- measurement
+
+
+@njit(cache=True, nogil=True)
+def _phase_add(rows, k, q, zr, zi, ph):
+    rc = math.cos(ph)
+    rs = -math.sin(ph)
+    rows[k, ms.M_S_RE + 2 * q] += zr * rc - zi * rs
+    rows[k, ms.M_S_IM + 2 * q] += zr * rs + zi * rc
+
+
+@njit(cache=True, nogil=True)
+def _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw,
+                      tol_t):  # fmt: skip
+    """Measure a whole sub-grid interval taken by the cheap test (y → ye = Φ y): exact
+    extremum, exact harmonics, Gauss nodes for the phase portrait."""
+    s0 = _row(R, r, R_S, y, nz)
+    sd0 = _row(R, r, R_SD, y, nz)
+    s1 = _row(R, r, R_S, ye, nz)
+    sd1 = _row(R, r, R_SD, ye, nz)
+    lo = min(s0, s1)
+    hi = max(s0, s1)
+    if sd0 * sd1 < 0.0:
+        _modal(Vi, r, y, nk[r], nz, a)
+        sc = _extremum(r, a, nk[r], lam, RV, h, sd0, sd1, tol_t, cw)
+        lo = min(lo, sc)
+        hi = max(hi, sc)
+    ms.add_extrema(rows, k, lo, hi)
+    for q in range(2):
+        zr = 0.0
+        zi = 0.0
+        for i in range(nz):
+            zr += psi[r, q, i].real * y[i]
+            zi += psi[r, q, i].imag * y[i]
+        _phase_add(rows, k, q, zr, zi, ph0)
+    vv = 0.0
+    vb = 0.0
+    for j in range(4):
+        v = 0.0
+        b = 0.0
+        for i in range(nz):
+            v += gl[r, j, 0, i] * y[i]
+            b += gl[r, j, 1, i] * y[i]
+        vv += ms.GL_WEIGHTS[j] * v * v
+        vb += ms.GL_WEIGHTS[j] * b * v
+    rows[k, ms.M_VV] += h * vv
+    rows[k, ms.M_VB] += h * vb
+
+
+@njit(cache=True, nogil=True)
+def _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw):
+    """s at the exact root of ṡ inside a piece where ṡ changes sign."""
+    sgn = 1.0 if sd0 > 0.0 else -1.0
+    _coef(RV, r, R_SD, a, nk, sgn, cw)
+    tc = rt.refine(cw, lam[r], nk, 0.0, 0.0, ln, abs(sd0), -abs(sd1), 1e-3 * tol_t)
+    _coef(RV, r, R_S, a, nk, 1.0, cw)
+    sc, _ = rt.ev(cw, lam[r], nk, 0.0, tc)
+    return sc
+
+
+@njit(cache=True, nogil=True)
+def _measure_piece(rows, k, r, a, nk, lam, RV, wt, ln, s0, sd0, s1, sd1, ph, gamma_r, measure,
+                   tol_t, cw):  # fmt: skip
+    """Measure an exactly propagated piece of length ln (modal coefficients a at its start)."""
+    if ln <= 0.0:
+        return
+    lo = min(s0, s1)
+    hi = max(s0, s1)
+    if sd0 * sd1 < 0.0:
+        if measure:
+            sc = _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw)
+            lo = min(lo, sc)
+            hi = max(hi, sc)
+        else:
+            lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, ln)
+    ms.add_extrema(rows, k, lo, hi)
+    if not measure:
+        return
+    shift = -1j * gamma_r
+    for q in range(2):
+        row = R_S if q == 0 else R_SB
+        acc = 0.0 + 0.0j
+        for m in range(nk):
+            c = RV[r, row, m] * a[m]
+            if wt[r, m] == 2.0:  # the pair (λ, λ̄) of a real sum: both terms of ∫ Re(·) e^{-iγt}
+                acc += 0.5 * (c * rt.phi1(lam[r, m] + shift, ln)
+                              + c.conjugate() * rt.phi1(lam[r, m].conjugate() + shift, ln))  # fmt: skip
+            else:
+                acc += c * rt.phi1(lam[r, m] + shift, ln)
+        _phase_add(rows, k, q, acc.real, acc.imag, ph)
+    vv = 0.0
+    vb = 0.0
+    for j in range(4):
+        t = ms.GL_NODES[j] * ln
+        v = 0.0
+        b = 0.0
+        for m in range(nk):
+            e = a[m] * cmath.exp(lam[r, m] * t)
+            v += (RV[r, R_SD, m] * e).real
+            b += (RV[r, R_SBD, m] * e).real
+        vv += ms.GL_WEIGHTS[j] * v * v
+        vb += ms.GL_WEIGHTS[j] * b * v
+    rows[k, ms.M_VV] += ln * vv
+    rows[k, ms.M_VB] += ln * vb
+
+
+@njit(cache=True, nogil=True)
+def _opened(kst, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
+    """End the contact episode once the gap of its stop has opened to ``OPEN_FRAC`` of the
+    clearance over a free piece (exact maximum of the gap)."""
+    k = int(kst[ms.K_CONTACT])
+    sgn = -1.0 if k == 1 else 1.0
+    gk = g1 if k == 1 else g2
+    thr = ms.OPEN_FRAC * gk
+    f0 = gk + sgn * _row(R, 0, R_W, y, nz)
+    d0 = sgn * _row(R, 0, R_WD, y, nz)
+    f1 = gk + sgn * _row(R, 0, R_W, ye, nz)
+    d1 = sgn * _row(R, 0, R_WD, ye, nz)
+    if f0 > thr or f1 > thr:
+        kst[ms.K_CONTACT] = 0.0
+        return
+    _, _, fmax, tmax = ms.cubic_minmax(f0, d0, f1, d1, ln)
+    if fmax <= 0.5 * thr:
+        return
+    if not have_a:
+        _modal(Vi, 0, y, nk[0], nz, a)
+    _coef(RV, 0, R_W, a, nk[0], sgn, cw)
+    tc = rt.crit(cw, lam[0], nk[0], 0.0, ln, d0, d1, tmax)
+    fc, _ = rt.ev(cw, lam[0], nk[0], gk, tc)
+    if fc > thr:
+        kst[ms.K_CONTACT] = 0.0
+
+
+# ----------------------------------------------------------------------------- events
+
+
+@njit(cache=True, nogil=True)
+def stick_or_leave(y, kst, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, ye, x,
+                   x2, a, cw):  # fmt: skip
+    """After an impact at stop k: stick if the contact force is compressive (or zero and
+    growing), else leave. A departure whose gap never opens above round-off within an interval
+    (the force turns compressive again at once) is taken as stuck, and vice versa. Returns
+    False if neither works (the impact is then repeated, bounded by the event budget)."""
+    nzm = 2 * N + 2
+    nx = 2 * N
+    kk = 1 if bilateral else k
+    for i in range(nzm - 1):
+        acc = 0.0
+        for jj in range(nzm):
+            acc += Pin[kk - 1, i, jj] * y[jj]
+        ye[i] = acc
+    ye[nzm - 2] = 0.0 if bilateral else (g1 if kk == 1 else -g2)  # the stop's position w*
+    ye[nzm - 1] = 0.0
+    sgn = -1.0 if kk == 1 else 1.0
+    lk = sgn * _row(R, kk, R_MU, ye, nzm - 1)
+    ld = sgn * _row(R, kk, R_MUD, ye, nzm - 1)
+    eps = 1e-12 * _row_scale(R, kk, R_MU, ye, nzm - 1)
+    stick = bilateral or lk > eps or (lk >= -eps and ld > 0.0)
+    for _attempt in range(2):
+        if stick:
+            ok = False
+            if bilateral or lk > eps:
+                kst[K_SKIP_ON] = 0.0
+                ok = True
+            else:
+                _modal(Vi, kk, ye, nk[kk], nzm - 1, a)
+                _coef(RV, kk, R_MU, a, nk[kk], sgn, cw)
+                ts = rt.skip_start(cw, lam[kk], nk[kk], 0.0, h)
+                if ts >= 0.0:
+                    kst[K_SKIP_ON] = 1.0
+                    kst[K_SKIP_REM] = ts
+                    ok = True
+            if ok:
+                for i in range(nzm):
+                    y[i] = ye[i]
+                kst[K_REGIME] = kk
+                return True
+        else:
+            full_state(kk, ye, Qout, N, x)
+            for i in range(nx):
+                x2[i] = x[i]
+            x2[nx] = ye[nzm - 4]
+            x2[nx + 1] = ye[nzm - 3]
+            _modal(Vi, 0, x2, nk[0], nzm, a)
+            _coef(RV, 0, R_W, a, nk[0], -1.0 if k == 1 else 1.0, cw)
+            ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h)
+            if ts >= 0.0:
+                for i in range(nzm):
+                    y[i] = x2[i]
+                kst[K_REGIME] = 0.0
+                kst[K_SKIP_ON] = 1.0
+                kst[K_SKIP_STOP] = k
+                kst[K_SKIP_REM] = ts
+                return True
+        stick = not stick
+    return False
+
+
+@njit(cache=True, nogil=True)
+def release(y, kst, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw):
+    """Leave stuck regime r where the contact force reached zero: back to free flight, with the
+    search for that stop starting once the gap has opened."""
+    nzm = 2 * N + 2
+    nx = 2 * N
+    k = int(kst[K_REGIME])
+    full_state(k, y, Qout, N, x)
+    osc_c = y[nzm - 4]
+    osc_s = y[nzm - 3]
+    for i in range(nx):
+        y[i] = x[i]
+    y[nx] = osc_c
+    y[nx + 1] = osc_s
+    kst[K_REGIME] = 0.0
+    _modal(Vi, 0, y, nk[0], nzm, a)
+    _coef(RV, 0, R_W, a, nk[0], -1.0 if k == 1 else 1.0, cw)
+    ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h)
+    if ts < 0.0:
+        kst[K_PENDING] = k
+    else:
+        kst[K_SKIP_ON] = 1.0
+        kst[K_SKIP_STOP] = k
+        kst[K_SKIP_REM] = ts
+
+
+# ----------------------------------------------------------------------------- the kernel
+
+
+@njit(cache=True, nogil=True)
+def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
+                 nzr, nk, Phi, eh, lam, V, Vi, wt, R, RV, Pin, Qout, psi, gl, W, MinvX, G, g1,
+                 g2, bilateral, N, n_grid, gamma_r, f_scale, margin, event_tol, max_events_pp,
+                 lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, tmp, a, c1, c2, cw, Ew,
+                 x2, stack, w4):  # fmt: skip
+    """Advance the regime state ``y`` (and its full state ``x``) by up to ``n_periods``
+    periods; returns (periods done, END code, period found)."""
+    nzm = 2 * N + 2
+    nx = 2 * N
+    T = 2.0 * math.pi / gamma_r
+    h = T / n_grid
+    tol_t = event_tol * T
+    for k in range(n_periods):
+        ms.begin_row(rows, k)
+        period = kst[ms.K_PERIOD]
+        ev_period = 0
+        failed = ms.END_NONE
+        for j in range(n_grid):
+            t = 0.0
+            ph0 = 2.0 * math.pi * j / n_grid
+            while True:
+                r = int(kst[K_REGIME])
+                nz = nzr[r]
+                nkr = nk[r]
+                big = 0.0
+                for i in range(nz):
+                    if not math.isfinite(y[i]):
+                        big = math.inf
+                        break
+                    big = max(big, abs(y[i]))
+                if big > MAX_STATE:
+                    failed = ms.END_DIVERGED if math.isfinite(big) else ms.END_NONFINITE
+                    break
+                pending = int(kst[K_PENDING])
+                tau_now = period * T + j * h + t
+                imp_l = 0.0
+                if pending > 0:
+                    # impact at the current time (the tip did not leave a stop it was released
+                    # from, or the run starts on a stop)
+                    kst[K_PENDING] = 0.0
+                    ev_period += 1
+                    if ev_period > max_events_pp:
+                        failed = ms.END_CHATTER
+                        break
+                    kk = pending
+                    wu = _row(R, 0, R_W, y, nzm)
+                    wd = _row(R, 0, R_WD, y, nzm)
+                    if kk == 1:
+                        resid = (g1 - wu) / max(g1, 1e-300)
+                    else:
+                        resid = (g2 + wu) / max(g2, 1e-300)
+                    P = -wd / G
+                    for i in range(N):
+                        y[N + i] += MinvX[i] * P
+                    imp_l = abs(P)
+                    rows[k, ms.M_CONTACT] += 1.0
+                    ms.add_impulses(rows, kst, k, imp_l if kk == 1 else 0.0,
+                                    imp_l if kk == 2 else 0.0, (j * h + t) / T)  # fmt: skip
+                    _log_event(evlog, kst, tau_now, 1.0, kk, resid, imp_l)
+                    pending = -kk
+                if pending < 0:
+                    kst[K_PENDING] = 0.0
+                    kk = -pending
+                    if stick_or_leave(y, kst, kk, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N,
+                                      g1, g2, h, ye, x, x2, a, cw):  # fmt: skip
+                        rn = int(kst[K_REGIME])
+                        _record(hist, xh, kst, tau_now, R, rn, y, nzr[rn],
+                                imp_l if kk == 1 else 0.0, imp_l if kk == 2 else 0.0, kk, Qout,
+                                N, x)  # fmt: skip
+                    else:
+                        kst[K_PENDING] = kk  # neither sticks nor leaves: impact again
+                    continue
+                ln = h - t
+                if ln <= 1e-13 * h:
+                    break
+                skip_on = kst[K_SKIP_ON] != 0.0
+                # ---- the cheap test on a whole interval
+                have_ye = False
+                if t == 0.0 and not skip_on:
+                    _matvec(Phi, r, y, nz, ye)
+                    have_ye = True
+                    if r == 0:
+                        w0 = _row(R, 0, R_W, y, nz)
+                        d0 = _row(R, 0, R_WD, y, nz)
+                        w1 = _row(R, 0, R_W, ye, nz)
+                        d1 = _row(R, 0, R_WD, ye, nz)
+                        wmin, _, wmax, _ = ms.cubic_minmax(w0, d0, w1, d1, h)
+                        bnd = (2.0 * h**4 / 384.0
+                               * (abs(_row(R, 0, R_W4, y, nz)) + abs(_row(R, 0, R_W4, ye, nz))))
+                        quick = (wmax + bnd < g1 * (1.0 - margin)
+                                 and wmin - bnd > -g2 * (1.0 - margin))  # fmt: skip
+                    elif bilateral:
+                        quick = True
+                    else:
+                        sgn = -1.0 if r == 1 else 1.0
+                        l0 = sgn * _row(R, r, R_MU, y, nz)
+                        e0 = sgn * _row(R, r, R_MUD, y, nz)
+                        l1 = sgn * _row(R, r, R_MU, ye, nz)
+                        e1 = sgn * _row(R, r, R_MUD, ye, nz)
+                        lmin, _, _, _ = ms.cubic_minmax(l0, e0, l1, e1, h)
+                        bnd = (2.0 * h**4 / 384.0
+                               * (abs(_row(R, r, R_MU4, y, nz)) + abs(_row(R, r, R_MU4, ye, nz))))
+                        quick = lmin - bnd > margin * max(l0, l1)
+                    if quick:
+                        if measure:
+                            _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV,
+                                              lam, nk, a, cw, tol_t)  # fmt: skip
+                        else:
+                            s0 = _row(R, r, R_S, y, nz)
+                            s1 = _row(R, r, R_S, ye, nz)
+                            lo = min(s0, s1)
+                            hi = max(s0, s1)
+                            sd0 = _row(R, r, R_SD, y, nz)
+                            sd1 = _row(R, r, R_SD, ye, nz)
+                            if sd0 * sd1 < 0.0:
+                                lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, h)
+                            if hi > rows[k, ms.M_SMAX]:
+                                rows[k, ms.M_SMAX] = hi
+                            if lo < rows[k, ms.M_SMIN]:
+                                rows[k, ms.M_SMIN] = lo
+                        il = 0.0
+                        if hist.shape[0] > 0 and r != 0:
+                            _modal(Vi, r, y, nkr, nz, a)
+                            _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
+                            for kq in range(nkr):
+                                il += (cw[kq] * rt.phi1(lam[r, kq], h)).real
+                        if r == 0 and kst[ms.K_CONTACT] != 0.0:
+                            _opened(kst, y, ye, h, R, RV, Vi, lam, nk, nz, g1, g2, a, False, cw)
+                        for i in range(nz):
+                            y[i] = ye[i]
+                        rows[k, ms.M_STEPS] += 1.0
+                        rows[k, ms.M_COARSE] += 1.0
+                        if hist.shape[0] > 0:
+                            _record(hist, xh, kst, period * T + (j + 1) * h, R, r, y, nz,
+                                    il if r == 1 else 0.0, il if r == 2 else 0.0, 0.0, Qout, N,
+                                    x)  # fmt: skip
+                        break
+                # ---- exact search over [t, h] (ye = Φ y already if have_ye)
+                if t == 0.0 and not have_ye:
+                    _matvec(Phi, r, y, nz, ye)
+                    have_ye = True
+                _modal(Vi, r, y, nkr, nz, a)
+                if have_ye:
+                    for q in range(nkr):
+                        Ew[q] = eh[r, q]
+                else:
+                    for q in range(nkr):
+                        Ew[q] = cmath.exp(lam[r, q] * ln)
+                t_ev = -1.0
+                kind = 0
+                if r == 0:
+                    for kk in range(1, 3):
+                        gk = g1 if kk == 1 else g2
+                        cc = c1 if kk == 1 else c2
+                        _coef(RV, 0, R_W, a, nkr, -1.0 if kk == 1 else 1.0, cc)
+                        ts = 0.0
+                        if skip_on and kst[K_SKIP_STOP] == kk:
+                            if kst[K_SKIP_REM] >= ln:
+                                continue
+                            ts = kst[K_SKIP_REM]
+                        lim = ln if t_ev < 0.0 else t_ev
+                        if ts >= lim:
+                            continue
+                        if ts == 0.0 and lim == ln and rt.clear_whole(cc, lam[0], Ew, nkr, gk, ln):
+                            continue
+                        te = rt.first_root(cc, lam[0], nkr, gk, ts, lim, tol_t, stack, w4)
+                        if te >= 0.0 and (t_ev < 0.0 or te < t_ev):
+                            t_ev = te
+                            kind = kk
+                elif not bilateral:
+                    sgn = -1.0 if r == 1 else 1.0
+                    _coef(RV, r, R_MU, a, nkr, sgn, c1)
+                    ts = kst[K_SKIP_REM] if skip_on else 0.0
+                    if ts < ln and not (ts == 0.0 and rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln)):
+                        te = rt.first_root(c1, lam[r], nkr, 0.0, ts, ln, tol_t, stack, w4)
+                        if te >= 0.0:
+                            t_ev = te
+                            kind = 2 + r  # release from stop r
+                lp = t_ev if t_ev >= 0.0 else ln
+                if t_ev >= 0.0:
+                    _state_at(V, lam, r, a, nkr, nz, lp, ye, tmp)
+                elif not have_ye:
+                    _state_E(V, r, a, Ew, nkr, nz, ye)
+                _measure_piece(rows, k, r, a, nkr, lam, RV, wt, lp, _row(R, r, R_S, y, nz),
+                               _row(R, r, R_SD, y, nz), _row(R, r, R_S, ye, nz),
+                               _row(R, r, R_SD, ye, nz), ph0 + gamma_r * t, gamma_r, measure,
+                               tol_t, cw)  # fmt: skip
+                il = 0.0
+                if hist.shape[0] > 0 and r != 0:
+                    _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
+                    for kq in range(nkr):
+                        il += (cw[kq] * rt.phi1(lam[r, kq], lp)).real
+                if r == 0 and kst[ms.K_CONTACT] != 0.0:
+                    _opened(kst, y, ye, lp, R, RV, Vi, lam, nk, nz, g1, g2, a, True, cw)
+                if skip_on:
+                    kst[K_SKIP_REM] -= lp
+                    if kst[K_SKIP_REM] <= 0.0:
+                        kst[K_SKIP_ON] = 0.0
+                for i in range(nz):
+                    y[i] = ye[i]
+                rows[k, ms.M_STEPS] += 1.0
+                t = h if t_ev < 0.0 else t + lp
+                tau_now = period * T + j * h + t
+                if t_ev < 0.0:
+                    _record(hist, xh, kst, tau_now, R, r, y, nz, il if r == 1 else 0.0,
+                            il if r == 2 else 0.0, 0.0, Qout, N, x)  # fmt: skip
+                    break
+                if kind <= 2:
+                    # impact on stop `kind` (applied at the top of the loop)
+                    if lp > 0.0:
+                        _record(hist, xh, kst, tau_now, R, r, y, nz, 0.0, 0.0, 0.0, Qout, N, x)
+                    kst[K_PENDING] = kind
+                    continue
+                # release from stop r: the contact force reached zero
+                ev_period += 1
+                if ev_period > max_events_pp:
+                    failed = ms.END_CHATTER
+                    break
+                sgn = -1.0 if r == 1 else 1.0
+                resid = sgn * _row(R, r, R_MU, y, nz) / max(_row_scale(R, r, R_MU, y, nz), 1e-300)
+                _log_event(evlog, kst, tau_now, 2.0, r, resid, 0.0)
+                release(y, kst, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw)
+                _record(hist, xh, kst, tau_now, R, 0, y, nzm, il if r == 1 else 0.0,
+                        il if r == 2 else 0.0, 2.0 + r, Qout, N, x)  # fmt: skip
+            if failed != ms.END_NONE:
+                break
+            # exact forcing phase at the grid point (no drift of the oscillator)
+            ang = 2.0 * math.pi * (j + 1) / n_grid
+            ic = 2 * N if kst[K_REGIME] == 0.0 else 2 * N - 2
+            y[ic] = f_scale * math.cos(ang)
+            y[ic + 1] = f_scale * math.sin(ang)
+        if failed != ms.END_NONE:
+            kst[ms.K_PERIOD] += 1.0
+            return k + 1, failed, 0
+        kst[ms.K_PERIOD] += 1.0
+        r = int(kst[K_REGIME])
+        full_state(r, y, Qout, N, x)
+        rows[k, ms.M_REGIME] = r
+        code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
+                                lin_gate, checks, div_limit, tol)  # fmt: skip
+        if code != ms.END_NONE:
+            return k + 1, code, p
+    return n_periods, ms.END_NONE, 0
+
+
+@njit(cache=True, nogil=True)
+def start_state(y, kst, R, RV, Vi, lam, nk, bilateral, N, g1, g2, h, a, cw):
+    """Regime and pending events for a free state y at τ = 0 (a reset): a gap closed at the
+    start is an impact there (or a departure, if the tip moves away)."""
+    nzm = 2 * N + 2
+    kst[K_REGIME] = 0.0
+    kst[K_SKIP_ON] = 0.0
+    kst[K_PENDING] = 0.0
+    if bilateral:
+        kst[K_PENDING] = 1.0
+        return
+    wu = _row(R, 0, R_W, y, nzm)
+    wd = _row(R, 0, R_WD, y, nzm)
+    stop = 0
+    if g1 - wu <= 1e-12 * max(g1, 1e-300):
+        if wd >= 0.0:
+            kst[K_PENDING] = 1.0
+        else:
+            stop = 1
+    elif g2 + wu <= 1e-12 * max(g2, 1e-300):
+        if wd <= 0.0:
+            kst[K_PENDING] = 2.0
+        else:
+            stop = 2
+    if stop:  # leaving a stop at τ = 0: search it once the gap has opened
+        _modal(Vi, 0, y, nk[0], nzm, a)
+        _coef(RV, 0, R_W, a, nk[0], -1.0 if stop == 1 else 1.0, cw)
+        ts = rt.skip_start(cw, lam[0], nk[0], g1 if stop == 1 else g2, h)
+        if ts < 0.0:
+            kst[K_PENDING] = stop
+        else:
+            kst[K_SKIP_ON] = 1.0
+            kst[K_SKIP_STOP] = stop
+            kst[K_SKIP_REM] = ts

@@ -1,0 +1,247 @@
+"""Roots and extrema of real sums of exponentials, ``f(t) = off + Re Σ_k c_k e^{λ_k t}``.
+
+Within one regime every observable of the event solver (a gap, a contact force, ``ṡ``) is such
+a sum, so events are its roots. The search is rigorous: a piece ``[lo, hi]`` is clear when the
+minimum of the cubic Hermite interpolant of ``(f, ḟ)`` from both ends, minus the bound
+``len⁴/384 · Σ|c_k||λ_k|⁴ max e^{Re λ_k t}`` of its interpolation error, stays positive;
+otherwise it is split in four, leftmost first, so the first root is the one found. A sign
+change on a short piece is refined by safeguarded Newton; a tangential touch (grazing) is
+found as the exact minimum of a tiny piece.
+
+The sums passed in may be *reduced*: one member of each complex-conjugate pair of ``λ``, with
+its coefficient doubled (``Re(c e^{λt} + c̄ e^{λ̄t}) = Re(2c e^{λt})``), which halves the work
+and changes nothing above (each bound term is ``|2c|``, the pair's true bound).
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+
+from numba import njit
+
+from worker.solvers.measure import cubic_minmax
+
+STACK = 160  # pieces the search may hold (depth ~ 4 per level)
+
+
+@njit(cache=True, nogil=True)
+def ev(c, lam, nz, off, t):
+    """f(t) and ḟ(t)."""
+    f = off
+    d = 0.0
+    for k in range(nz):
+        e = c[k] * cmath.exp(lam[k] * t)
+        f += e.real
+        d += (e * lam[k]).real
+    return f, d
+
+
+@njit(cache=True, nogil=True)
+def ev2(c, lam, nz, t):
+    """ḟ(t) and f̈(t)."""
+    d = 0.0
+    dd = 0.0
+    for k in range(nz):
+        e = c[k] * lam[k] * cmath.exp(lam[k] * t)
+        d += e.real
+        dd += (e * lam[k]).real
+    return d, dd
+
+
+@njit(cache=True, nogil=True)
+def bound4(w4, lam, nz, lo, hi):
+    """Rigorous bound of the cubic Hermite interpolation error of f on [lo, hi];
+    ``w4[k] = |c_k| |λ_k|⁴`` (from :func:`bound_weights`)."""
+    acc = 0.0
+    for k in range(nz):
+        r = lam[k].real
+        acc += w4[k] * (1.0 if r <= 0.0 and lo >= 0.0 else math.exp(max(r * lo, r * hi)))
+    ln = hi - lo
+    return acc * ln * ln * ln * ln / 384.0
+
+
+@njit(cache=True, nogil=True)
+def bound_weights(c, lam, nz, w4):
+    """w4[k] = |c_k| |λ_k|⁴, the weights of :func:`bound4`."""
+    for k in range(nz):
+        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
+        w4[k] = abs(c[k]) * m2 * m2
+
+
+@njit(cache=True, nogil=True)
+def refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t):
+    """Root of f in [lo, hi] with f(lo) > 0 >= f(hi): safeguarded Newton, then one polish."""
+    if fhi == 0.0:
+        return hi
+    a = lo
+    b = hi
+    t = lo + (hi - lo) * flo / (flo - fhi)  # regula falsi start
+    if not (a < t < b):
+        t = 0.5 * (a + b)
+    for _ in range(200):
+        f, d = ev(c, lam, nz, off, t)
+        if f > 0.0:
+            a = t
+        else:
+            b = t
+        if f == 0.0:
+            return t
+        tn = t - f / d if d != 0.0 else -1.0
+        if not (a < tn < b):
+            tn = 0.5 * (a + b)
+        step = abs(tn - t)
+        t = tn
+        if step <= tol_t or b - a <= 4e-16 * max(abs(a), abs(b)):
+            f, d = ev(c, lam, nz, off, t)
+            if d != 0.0:
+                tn = t - f / d
+                if a <= tn <= b:
+                    t = tn
+            return t
+    return t
+
+
+@njit(cache=True, nogil=True)
+def crit(c, lam, nz, lo, hi, dlo, dhi, guess):
+    """A critical point (ḟ = 0) in [lo, hi]; Newton safeguarded by the bracket if there is one."""
+    if dlo * dhi > 0.0:
+        return guess
+    a = lo
+    b = hi
+    up = dlo < 0.0  # ḟ increasing through zero: a minimum
+    t = guess if lo < guess < hi else 0.5 * (lo + hi)
+    for _ in range(100):
+        d, dd = ev2(c, lam, nz, t)
+        if (d < 0.0) == up:
+            a = t
+        else:
+            b = t
+        tn = t - d / dd if dd != 0.0 else -1.0
+        if not (a < tn < b):
+            tn = 0.5 * (a + b)
+        if abs(tn - t) <= 1e-15 * max(abs(hi), 1e-300):
+            return tn
+        t = tn
+    return t
+
+
+@njit(cache=True, nogil=True)
+def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
+    """First t in [t0, t1] where f reaches zero, or -1 if f > 0 throughout (proven).
+
+    ``stack`` (STACK × 6) and ``w4`` (>= nz) are scratch arrays."""
+    f0, d0 = ev(c, lam, nz, off, t0)
+    if f0 <= 0.0:
+        return t0
+    bound_weights(c, lam, nz, w4)
+    f1, d1 = ev(c, lam, nz, off, t1)
+    total = t1 - t0
+    tiny = 1e-9 * total
+    stack[0, 0] = t0
+    stack[0, 1] = t1
+    stack[0, 2] = f0
+    stack[0, 3] = d0
+    stack[0, 4] = f1
+    stack[0, 5] = d1
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        lo = stack[sp, 0]
+        hi = stack[sp, 1]
+        flo = stack[sp, 2]
+        dlo = stack[sp, 3]
+        fhi = stack[sp, 4]
+        dhi = stack[sp, 5]
+        if flo <= 0.0:
+            return lo
+        ln = hi - lo
+        if fhi <= 0.0:
+            # sign change; a long piece may hide an earlier touch, so look closer first
+            if ln <= 0.0625 * total or sp >= STACK - 5:
+                return refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t)
+        else:
+            fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
+            bnd = bound4(w4, lam, nz, lo, hi)
+            if fmin - bnd > 0.0:
+                continue
+            if ln <= tiny or sp >= STACK - 5:
+                tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
+                fc, _ = ev(c, lam, nz, off, tc)
+                if fc <= 0.0:
+                    return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
+                continue
+        # split in four, pushed right to left so the leftmost piece is examined first
+        pf = fhi
+        pd = dhi
+        for i in range(3, -1, -1):
+            a_ = lo + ln * i / 4.0
+            b_ = lo + ln * (i + 1) / 4.0 if i < 3 else hi
+            if i > 0:
+                fa, da = ev(c, lam, nz, off, a_)
+            else:
+                fa = flo
+                da = dlo
+            stack[sp, 0] = a_
+            stack[sp, 1] = b_
+            stack[sp, 2] = fa
+            stack[sp, 3] = da
+            stack[sp, 4] = pf
+            stack[sp, 5] = pd
+            sp += 1
+            pf = fa
+            pd = da
+    return -1.0
+
+
+@njit(cache=True, nogil=True)
+def clear_whole(c, lam, E, nz, off, ln):
+    """True if f > 0 on [0, ln] is proven by the Hermite cubic and the error bound, with
+    ``E = e^{λ·ln}`` given (no exponentials evaluated)."""
+    f0 = off
+    d0 = 0.0
+    f1 = off
+    d1 = 0.0
+    acc = 0.0
+    for k in range(nz):
+        cl = c[k] * lam[k]
+        ce = c[k] * E[k]
+        f0 += c[k].real
+        d0 += cl.real
+        f1 += ce.real
+        d1 += (cl * E[k]).real
+        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
+        grow = 1.0 if lam[k].real <= 0.0 else math.exp(lam[k].real * ln)
+        acc += abs(c[k]) * m2 * m2 * grow
+    if f0 <= 0.0 or f1 <= 0.0:
+        return False
+    fmin, _, _, _ = cubic_minmax(f0, d0, f1, d1, ln)
+    return fmin - acc * ln * ln * ln * ln / 384.0 > 0.0
+
+
+@njit(cache=True, nogil=True)
+def skip_start(c, lam, nz, off, h):
+    """Smallest tried t in (0, h] where f is clearly positive after leaving f = 0, or -1.
+
+    After a release (or a departure from a stop) f grows like t² or t³ from round-off; roots
+    before this t are round-off, not events."""
+    scale = abs(off)
+    for k in range(nz):
+        scale += abs(c[k])
+    eps = 1e-12 * scale
+    t = h * 8.0**-13
+    while t <= h * (1.0 + 1e-12):
+        f, _ = ev(c, lam, nz, off, t)
+        if f > eps:
+            return t
+        t *= 8.0
+    return -1.0
+
+
+@njit(cache=True, nogil=True)
+def phi1(x, ln):
+    """(e^{x·ln} - 1)/x, stable for small x·ln."""
+    z = x * ln
+    if abs(z) < 1e-3:
+        return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
+    return (cmath.exp(z) - 1.0) / x

@@ -1,0 +1,205 @@
+"""``method: exponential``: the exact propagator with Moreau impulses (MODEL.md §5).
+
+Free flight takes whole coarse steps with the exact map ``x ← Φ x + E [cos; sin]`` (the
+harmonic forcing carried in the state). Before a coarse step is kept, the tip's path over it
+(the cubic Hermite fit of position and velocity at both ends) is checked against each stop with
+a margin of ``near_margin`` of that stop's gap; if it may come near, the step is redone as
+``n_sub`` fine steps, each with a Moreau impulse at its start sized so that the predicted end
+gap is zero (the two-stop complementarity in closed form, with the fine step's contact gain
+``G_f = Wᵀ(Φ_f [0; M⁻¹X])_u``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+from numba import njit
+
+from worker.model import System
+from worker.solvers import measure as ms
+from worker.solvers.base import KernelRun
+from worker.solvers.lcp import two_stop_impulses
+from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
+from worker.solvers.stepping import gauss_rows, harmonics, portrait, step_end
+
+DEFAULT_STEPS = 2048
+# The fine step's contact gain must be at least this fraction of its short-step value G·Δτ;
+# below it the step does not resolve the tip's modes and the impulse would be mis-sized.
+MIN_GAIN_RATIO = 0.5
+
+
+@njit(cache=True, nogil=True)
+def _propagate(Phi, E, x, cf, sf, xn, nx):
+    """xn = Φ x + E [cos; sin]: the exact free-flight step."""
+    for i in range(nx):
+        acc = E[i, 0] * cf + E[i, 1] * sf
+        for j in range(nx):
+            acc += Phi[i, j] * x[j]
+        xn[i] = acc
+
+
+@njit(cache=True, nogil=True)
+def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh,
+                       n_coarse, n_sub, gamma_r, f_scale, Phi_c, E_c, Phi_f, E_f, b_f, psi_c,
+                       psi_f, psib_f, gl_c, gl_f, glb_f, glb0, W, d, Gf, MinvX_s, g1, g2,
+                       margin, adaptive, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol,
+                       xn):  # fmt: skip
+    """Advance up to ``n_periods`` periods; returns (periods done, END code, period found)."""
+    nx = x.shape[0]
+    N = nx // 2
+    n = N - 1
+    T = 2.0 * math.pi / gamma_r
+    dtc = T / n_coarse
+    dtf = dtc / n_sub
+    rot_cd = math.cos(gamma_r * dtf)
+    rot_sd = math.sin(gamma_r * dtf)
+    always_fine = (g1 + g2) <= 0.0 or not adaptive
+    for k in range(n_periods):
+        ms.begin_row(rows, k)
+        period = kst[ms.K_PERIOD]
+        for jc in range(n_coarse):
+            phase = jc * dtc
+            tau_c = period * T + phase
+            cos0 = math.cos(gamma_r * phase)
+            sin0 = math.sin(gamma_r * phase)
+            if not always_fine:
+                # whole coarse step in free flight, kept unless the tip may come near a stop
+                cf = cos0 * f_scale
+                sf = sin0 * f_scale
+                _propagate(Phi_c, E_c, x, cf, sf, xn, nx)
+                w0 = ms.dot(W, x, N)
+                w1 = ms.dot(W, xn, N)
+                wv0 = 0.0
+                wv1 = 0.0
+                for i in range(N):
+                    wv0 += W[i] * x[N + i]
+                    wv1 += W[i] * xn[N + i]
+                wmin, _, wmax, _ = ms.cubic_minmax(w0, wv0, w1, wv1, dtc)
+                if wmax < g1 * (1.0 - margin) and wmin > -g2 * (1.0 - margin):
+                    if measure:
+                        harmonics(rows, k, psi_c, psib_f, 0.0, x, cf, sf, cos0, -sin0, nx)
+                        portrait(rows, k, gl_c, glb0, 0.0, x, cf, sf, dtc, nx)
+                    s0 = x[n]
+                    v0 = x[N + n]
+                    for i in range(nx):
+                        x[i] = xn[i]
+                    rows[k, ms.M_COARSE] += 1.0
+                    step_end(rows, k, kst, hist, xh, s0, v0, x[n], x[N + n], dtc, 0.0, 0.0,
+                             phase / T, tau_c + dtc, x, nx, W, d, N, n, g1, g2)  # fmt: skip
+                    continue
+            cph = cos0
+            sph = sin0
+            for js in range(n_sub):
+                if js > 0:
+                    tmp = cph * rot_cd - sph * rot_sd
+                    sph = sph * rot_cd + cph * rot_sd
+                    cph = tmp
+                cf = cph * f_scale
+                sf = sph * f_scale
+                s0 = x[n]
+                v0 = x[N + n]
+                _propagate(Phi_f, E_f, x, cf, sf, xn, nx)
+                wend = ms.dot(W, xn, N)
+                l1, l2 = two_stop_impulses(Gf, g1 - wend, g2 + wend)
+                P = l2 - l1
+                if P != 0.0:
+                    for i in range(nx):
+                        xn[i] += b_f[i] * P
+                    v0 += MinvX_s * P  # Moreau: the step's trajectory starts after the impulse
+                if measure:
+                    harmonics(rows, k, psi_f, psib_f, P, x, cf, sf, cph, -sph, nx)
+                    portrait(rows, k, gl_f, glb_f, P, x, cf, sf, dtf, nx)
+                for i in range(nx):
+                    x[i] = xn[i]
+                step_end(rows, k, kst, hist, xh, s0, v0, x[n], x[N + n], dtf, l1, l2,
+                         (phase + js * dtf) / T, tau_c + (js + 1) * dtf, x, nx, W, d, N, n, g1,
+                         g2)  # fmt: skip
+        kst[ms.K_PERIOD] += 1.0
+        rows[k, ms.M_REGIME] = kst[ms.K_CONTACT]
+        code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
+                                lin_gate, checks, div_limit, tol)  # fmt: skip
+        if code != ms.END_NONE:
+            return k + 1, code, p
+    return n_periods, ms.END_NONE, 0
+
+
+def fourier_rows(sys_: System, A_aug: np.ndarray, dt: float) -> np.ndarray:
+    """Rows ψ with ψ·z(0) = ∫₀^dt [s; s_b](t) e^{-iγt} dt exactly, for free flight from z(0)."""
+    nz = A_aug.shape[0]
+    # ∫₀^dt e^{(A - iγ)t} dt is the top-right block of exp([[A - iγ, I], [0, 0]] dt).
+    B = np.zeros((2 * nz, 2 * nz), dtype=complex)
+    B[:nz, :nz] = A_aug - 1j * sys_.params.gamma_r * np.eye(nz)
+    B[:nz, nz:] = np.eye(nz)
+    integral = scipy.linalg.expm(B * dt)[:nz, nz:]
+    n = sys_.ndof - 1
+    R = np.zeros((2, nz))
+    R[0, n] = 1.0  # s
+    R[1, :n] = sys_.d  # s_b
+    return np.ascontiguousarray(R @ integral)
+
+
+class ExponentialRun(KernelRun):
+    """A point integrated by the exact propagator with Moreau impulses."""
+
+    name = "exponential"
+
+    def __init__(self, sys_: System, settings: SolverSettings, *args) -> None:
+        super().__init__(sys_, settings, *args)
+        p = sys_.params
+        nx = self.nx
+        T = 2.0 * math.pi / p.gamma_r
+        spp = settings.steps_per_period or DEFAULT_STEPS
+        A_aug = sys_.augmented_matrix()
+        b = np.zeros(nx)
+        b[sys_.ndof :] = sys_.Minv @ sys_.X
+        G = sys_.G
+        while True:
+            n_coarse = min(settings.coarse_steps, spp)
+            while spp % n_coarse:
+                n_coarse -= 1
+            n_sub = spp // n_coarse
+            dtf = T / spp
+            Pf = scipy.linalg.expm(A_aug * dtf)
+            b_f = Pf[:nx, :nx] @ b
+            Gf = float(sys_.W @ b_f[: sys_.ndof])
+            if Gf >= MIN_GAIN_RATIO * G * dtf:
+                break
+            # The fine step does not resolve the tip's lowest modes: the impulse that closes
+            # the gap at the step's end would be mis-sized (or of the wrong sign). Refine.
+            if 2 * spp > MAX_STEPS_PER_PERIOD:
+                raise ValueError(
+                    f"exponential: the fine step T/{spp} does not resolve the tip's modes "
+                    f"(contact gain {Gf:.3g} < {MIN_GAIN_RATIO} G Δτ = "
+                    f"{MIN_GAIN_RATIO * G * dtf:.3g}) even at the {MAX_STEPS_PER_PERIOD} steps "
+                    f"per period limit; use method event"
+                )
+            spp *= 2
+        self.spp = spp
+        dtc = T / n_coarse
+        Pc = scipy.linalg.expm(A_aug * dtc)
+        psi_c = fourier_rows(sys_, A_aug, dtc)
+        psi_f = fourier_rows(sys_, A_aug, dtf)
+        N = sys_.ndof
+        gl_f = gauss_rows(lambda t: scipy.linalg.expm(A_aug * t), dtf, N, sys_.d)
+        gl_c = gauss_rows(lambda t: scipy.linalg.expm(A_aug * t), dtc, N, sys_.d)
+        c = np.ascontiguousarray
+        self.arrays = (
+            n_coarse, n_sub, p.gamma_r, self.f_scale, c(Pc[:nx, :nx]), c(Pc[:nx, nx:]),
+            c(Pf[:nx, :nx]), c(Pf[:nx, nx:]), c(b_f), psi_c, psi_f, c(psi_f[:, :nx] @ b),
+            gl_c, gl_f, c(gl_f[:, :, :nx] @ b), np.zeros((4, 2)), sys_.W, sys_.d, Gf,
+            float((sys_.Minv @ sys_.X)[-1]), p.g1, p.g2, settings.near_margin,
+            settings.adaptive,
+        )  # fmt: skip
+        self.xn = np.zeros(nx)
+
+    def _advance(self, n, measure, checks, rows, samples):
+        return exponential_kernel(
+            self.x, self.kst, self.ring, n, measure, checks, rows, samples, self.hist, self.xh,
+            *self.arrays, self.lin_L, self.lin_xp, self.lin_amp, self.lin_gate, self.div_limit,
+            self.tol, self.xn,
+        )  # fmt: skip
+
+    def history_rows_per_period(self) -> int:
+        return self.spp + 8

@@ -1,0 +1,136 @@
+"""The impact-free cell: its closed-form steady state, and proofs that no stop is reached again.
+
+Between impacts the cell is linear, ``ẋ = A x + b (f_cos cos γτ + f_sin sin γτ)``. Every free
+motion is the closed-form steady state ``x_p(τ) = Re(X̂ e^{iγτ})`` plus a homogeneous part, so
+from a state ``x`` at forcing phase 0 the tip moves as
+
+    w_tip(t) = Re(Ŵ e^{iγt}) + Re Σ_k c_k e^{λ_k t},   c = (W V)∘(V⁻¹ (x - x_p(0))),
+
+a sum of exponentials. If every ``Re λ_k <= 0``, ``|w_tip(t)| <= |Ŵ| + Σ_k |c_k| e^{Re λ_k t}``
+for all ``t >= 0``. The tail is proven impact-free (:meth:`LinearTail.proves`) when this bound
+is below both clearances from some ``t*`` on and an exact root search of both gaps
+(``event.roots.first_root``) shows no contact on ``[0, t*]``. With ``t* = 0`` the test is the
+cheap per-period check of the kernels (``measure.period_end``). When the tail is proven and the
+cell is damped, the point's steady state *is* the closed form (the ``linear`` outcome); with
+``Re λ = 0`` (no damping) the free vibration never decays, which is a failure, not a result.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from worker.model import SteadyState, System, steady_state
+from worker.solvers.event.roots import STACK, first_root
+
+__all__ = ["GATE_RTOL", "LinearTail", "linear_tail"]
+
+# The bound must stay below the clearance by this relative margin (round-off in the bound).
+GATE_RTOL = 1e-9
+# Eigenvalues with Re λ within this fraction of |λ| of zero count as undamped.
+UNDAMPED_RTOL = 1e-12
+
+
+@dataclass(frozen=True)
+class LinearTail:
+    """What the linear tail test needs for one point (arrays ready for the kernels)."""
+
+    steady: SteadyState | None  # None: no steady state (forcing at an undamped resonance)
+    lam: np.ndarray  # kept eigenvalues of the free system (one of each conjugate pair)
+    L: np.ndarray  # (m, 2N) complex: tip coefficient of each kept mode from x - x_p(0)
+    xp0: np.ndarray  # (2N,) x_p at forcing phase 0 (zeros without a steady state)
+    w_hat: complex  # Ŵ: the steady state's complex tip amplitude at phase 0
+    amp: float  # |Ŵ|
+    gamma_r: float
+    gate: float  # the bound must be below this (the smaller clearance, less round-off)
+    g1: float
+    g2: float
+    usable: bool  # the bound is valid (Re λ <= 0, a steady state exists, V well conditioned)
+    damped: bool  # every mode decays (Re λ < 0): a proven tail is a steady state
+    max_re: float  # largest Re λ of the free system
+    scale: float  # size of the steady state's state vector (or of the static response)
+
+    def proves(self, x: np.ndarray, horizon: float) -> bool:
+        """Whether the free motion from ``x`` (forcing phase 0) provably never reaches a stop:
+        the bound is below the gate from some ``t* <= horizon`` on, and an exact search of
+        both gaps finds no contact on ``[0, t*]``."""
+        if not self.usable:
+            return False
+        c = self.L @ (x - self.xp0)
+        mag = np.abs(c)
+        decay = np.minimum(self.lam.real, 0.0)
+        if self.amp + float(mag.sum()) < self.gate:
+            return True
+        if self.amp + float(mag[decay == 0.0].sum()) >= self.gate:
+            return False
+        if self.amp + float(mag @ np.exp(decay * horizon)) >= self.gate:
+            return False
+        lo, hi = 0.0, horizon  # the bound decreases in t: bisection for where it passes
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            if self.amp + float(mag @ np.exp(decay * mid)) < self.gate:
+                hi = mid
+            else:
+                lo = mid
+        coef = np.append(c, self.w_hat)
+        lam = np.append(self.lam, 1j * self.gamma_r)
+        nk = len(coef)
+        stack = np.zeros((STACK, 6))
+        w4 = np.zeros(nk)
+        tol_t = 1e-9 * hi
+        # stop 1: g1 - w > 0; stop 2: g2 + w > 0, with w = Re Σ coef e^{λt}
+        if first_root(-coef, lam, nk, self.g1, 0.0, hi, tol_t, stack, w4) >= 0.0:
+            return False
+        return first_root(coef, lam, nk, self.g2, 0.0, hi, tol_t, stack, w4) < 0.0
+
+
+def linear_tail(sys_: System, forcing: bool = True) -> LinearTail:
+    """Closed-form steady state and the tail-proof data of ``sys_`` (forcing on or off)."""
+    p = sys_.params
+    N = sys_.ndof
+    lam, V = np.linalg.eig(sys_.state_matrix())
+    lam_abs = float(np.max(np.abs(lam)))
+    max_re = float(np.max(lam.real))
+    valid = max_re <= UNDAMPED_RTOL * max(lam_abs, 1.0)
+    damped = max_re < -UNDAMPED_RTOL * max(lam_abs, 1.0)
+    steady = steady_state(sys_, forcing=forcing)
+    try:
+        Vi = np.linalg.inv(V)
+        # conditioning of V, cheaply: the 1-norm condition number from the inverse in hand
+        cond_ok = bool(np.all(np.isfinite(Vi))) and (
+            np.abs(V).sum(axis=0).max() * np.abs(Vi).sum(axis=0).max() < 1e12
+        )
+    except np.linalg.LinAlgError:
+        Vi, cond_ok = np.zeros_like(V), False
+    # One of each conjugate pair with weight 2 (Re(c e^{λt} + c̄ e^{λ̄t}) = Re(2c e^{λt})).
+    keep = lam.imag >= 0.0
+    weight = np.where(lam.imag > 0.0, 2.0, 1.0)[keep]
+    WV = (sys_.W @ V[:N, :])[keep]
+    L = np.ascontiguousarray((weight * WV)[:, None] * Vi[keep, :])
+    if steady is None:
+        xp0 = np.zeros(2 * N)
+        w_hat = 0j
+        static = np.linalg.solve(sys_.K, np.eye(N)[-1]) * math.hypot(sys_.f_sin, sys_.f_cos)
+        scale = float(np.max(np.abs(static)))
+    else:
+        xp0 = steady.state_at_phase_zero()
+        w_hat = complex(sys_.W @ steady.U)
+        scale = float(np.max(np.abs(np.concatenate([steady.U, 1j * p.gamma_r * steady.U]))))
+    return LinearTail(
+        steady=steady,
+        lam=np.ascontiguousarray(lam[keep]),
+        L=L,
+        xp0=np.ascontiguousarray(xp0),
+        w_hat=w_hat,
+        amp=abs(w_hat),
+        gamma_r=p.gamma_r,
+        gate=min(p.g1, p.g2) * (1.0 - GATE_RTOL),
+        g1=float(p.g1),
+        g2=float(p.g2),
+        usable=bool(valid and cond_ok and steady is not None),
+        damped=bool(damped),
+        max_re=max_re,
+        scale=max(scale, 1e-300),
+    )

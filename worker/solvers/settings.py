@@ -1,0 +1,195 @@
+"""Solver settings, the outcomes a point can end with, and the result record of one point."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_METHOD",
+    "LCP_SOLVERS",
+    "MAX_STEPS_PER_PERIOD",
+    "METHODS",
+    "OUTCOMES",
+    "SOLVER_VERSION",
+    "PointResult",
+    "SolverSettings",
+    "int_in",
+]
+
+# Bumped whenever the numbers a point reports may change: it is part of every study id.
+SOLVER_VERSION = "2"
+METHODS = ("event", "exponential", "euler")
+DEFAULT_METHOD = "event"
+LCP_SOLVERS = ("closed", "lemke")
+MAX_STEPS_PER_PERIOD = 10_000_000
+
+#: How a point ended (docs/solvers.md, "How a point ends"). The order is the CF flag order.
+OUTCOMES = ("linear", "periodic", "irregular", "unsettled", "failed")
+
+
+def int_in(name: str, value: Any, lo: int, hi: int) -> int:
+    """``value`` as an int in ``lo…hi``, or a ``ValueError`` naming the field."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer in {lo}…{hi}, got {value!r}")
+    if not lo <= int(value) <= hi:
+        raise ValueError(f"{name} must be an integer in {lo}…{hi}, got {value}")
+    return int(value)
+
+
+def _real_in(name: str, value: Any, lo: float, hi: float, lo_open: bool = True) -> float:
+    """``value`` as a float in (lo, hi) or [lo, hi), or a ``ValueError`` naming the field."""
+    what = f"{'(' if lo_open else '['}{lo:g}, {hi:g})"
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number in {what}, got {value!r}")
+    v = float(value)
+    if not ((v > lo if lo_open else v >= lo) and v < hi and math.isfinite(v)):
+        raise ValueError(f"{name} must be in {what}, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """How a point is integrated and how it ends.
+
+    Parameters
+    ----------
+    method : {"event", "exponential", "euler"}
+        The event-driven solver (default: free flight and the stuck phases exact, impacts and
+        releases located to ``1e-12`` of a period), the exact propagator with Moreau impulses in
+        fine steps near the stops, or the paper's semi-implicit Euler scheme.
+    steps_per_period : int or None
+        ``event``: sub-grid intervals per period for bracketing events (default 64; sets the
+        cost, not the answer). ``exponential``: fine steps per period near the stops (default
+        2048; refined where the fine step would not resolve the lowest mode). ``euler``: time
+        steps per period (default 1024 or enough for Δτ·ω̃_max <= 1).
+    coarse_steps : int
+        ``exponential`` only: free-flight steps per period.
+    max_periods : int
+        Period budget. A point that has not ended by then is ``unsettled``.
+    periodicity_tol : float
+        Relative tolerance of a periodic orbit: the confirmed orbit repeats, and its estimated
+        distance to the exact orbit is below this fraction of the state's size.
+    window : int
+        Periods per measurement window: an irregular response's Γ is the mean over windows of
+        each window's Γ (docs/solvers.md).
+    stat_tol_db : float
+        Standard error of Γ (dB) at which the statistics of an irregular response count as
+        converged.
+    near_margin : float
+        ``exponential``/``event``: the cheap no-contact test keeps this fraction of a gap (or of
+        the contact force) clear.
+    adaptive : bool
+        ``exponential`` only: whole coarse steps in free flight (off: fine steps everywhere).
+    early_stop : bool
+        End a point as soon as its outcome is proven (off: run the whole budget, then classify).
+    extrapolate : bool
+        Accelerate convergence to a periodic orbit by vector extrapolation of the stroboscopic
+        sequence (every accepted orbit is confirmed by integration either way).
+    lcp : {"closed", "lemke"}
+        ``euler`` only: the two-stop LCP of each step in closed form or by Lemke's algorithm.
+    """
+
+    method: str = DEFAULT_METHOD
+    steps_per_period: int | None = None
+    coarse_steps: int = 64
+    max_periods: int = 1000
+    periodicity_tol: float = 1e-9
+    window: int = 20
+    stat_tol_db: float = 0.1
+    near_margin: float = 0.1
+    adaptive: bool = True
+    early_stop: bool = True
+    extrapolate: bool = True
+    lcp: str = "closed"
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        ints = {"coarse_steps": (4, 1 << 20), "max_periods": (2, 10_000_000),
+                "window": (1, 10_000_000)}  # fmt: skip
+        if self.steps_per_period is not None:
+            ints["steps_per_period"] = (4, MAX_STEPS_PER_PERIOD)
+        for name, (lo, hi) in ints.items():
+            object.__setattr__(self, name, int_in(name, getattr(self, name), lo, hi))
+        if self.window >= self.max_periods:
+            raise ValueError(
+                f"window must be < max_periods ({self.max_periods}), got {self.window}"
+            )
+        reals = {"periodicity_tol": (0.0, 1e-2, True), "stat_tol_db": (0.0, 100.0, True),
+                 "near_margin": (0.0, 1.0, False)}  # fmt: skip
+        for name, (lo, hi, lo_open) in reals.items():
+            object.__setattr__(self, name, _real_in(name, getattr(self, name), lo, hi, lo_open))
+        for name in ("adaptive", "early_stop", "extrapolate"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        if self.lcp not in LCP_SOLVERS:
+            raise ValueError(f"lcp must be one of {', '.join(LCP_SOLVERS)}, got {self.lcp!r}")
+
+
+@dataclass
+class PointResult:
+    """What one point reports (docs/model.md, "What a point reports").
+
+    Measured values are ``None`` when the point failed. ``outcome`` says how the point ended
+    and what its numbers are: ``linear`` (the closed-form steady state, proven impact-free for
+    all future time), ``periodic`` (a confirmed period-``response_period`` orbit with impacts),
+    ``irregular`` (window statistics converged: Γ is a mean with standard error
+    ``transmittance_db_se``), ``unsettled`` (the budget ran out first; numbers kept, not
+    proven) or ``failed`` (``reason`` says why).
+    """
+
+    outcome: str
+    transmittance_db: float | None
+    transmittance_db_se: float | None
+    amplitude: float | None
+    theta_eff: float | None
+    theta_eff_slope: float | None
+    response_period: int
+    impacts_per_period: tuple[float, float] | None
+    peak_impulse: float | None
+    floquet_multiplier: float | None
+    periods: int
+    steps: int
+    contact_steps: int
+    coarse_steps: int
+    steady_period: int
+    wall_s: float
+    reason: str
+    method: str
+    steps_per_period: int
+    history: dict[str, np.ndarray] | None = field(default=None, repr=False)
+
+    @property
+    def failed(self) -> bool:
+        """Whether the point failed (its measured values are ``None``)."""
+        return self.outcome == "failed"
+
+    @property
+    def converged(self) -> bool:
+        """Whether the point reached a proven steady state (``linear`` or ``periodic``)."""
+        return self.outcome in ("linear", "periodic")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (no history); ``failed`` is included for the record's readers."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "history"}
+        if self.impacts_per_period is not None:
+            out["impacts_per_period"] = list(self.impacts_per_period)
+        out["failed"] = self.failed
+        return out
+
+    @classmethod
+    def failure(cls, method: str, reason: str, *, steps_per_period: int = 0,
+                periods: int = 0, wall_s: float = 0.0, **counts: int) -> PointResult:  # fmt: skip
+        """The record of a point that failed (or could not be run) with ``reason``."""
+        return cls(
+            outcome="failed", transmittance_db=None, transmittance_db_se=None, amplitude=None,
+            theta_eff=None, theta_eff_slope=None, response_period=0, impacts_per_period=None,
+            peak_impulse=None, floquet_multiplier=None, periods=periods,
+            steps=counts.get("steps", 0), contact_steps=counts.get("contact_steps", 0),
+            coarse_steps=counts.get("coarse_steps", 0), steady_period=-1, wall_s=wall_s,
+            reason=reason, method=method, steps_per_period=steps_per_period,
+        )  # fmt: skip
