@@ -329,7 +329,8 @@ def slice_json(da: xr.DataArray) -> dict[str, Any]:
         ``variable``, ``units``, ``long_name``, ``dims``, ``coords`` (every coordinate with
         dimensions, as (nested) lists), ``coord_dims`` (their dimensions), ``scalars``
         (0-d coordinates, e.g. the selected values) and ``values`` (nested lists). Missing and
-        non-finite numbers are ``None``.
+        non-finite numbers are ``None``. A CF flag variable (``outcome``) also gives
+        ``flag_values`` and ``flag_meanings`` (lists, in the same order).
     """
     coords: dict[str, Any] = {}
     coord_dims: dict[str, list[str]] = {}
@@ -344,7 +345,7 @@ def slice_json(da: xr.DataArray) -> dict[str, Any]:
         if d not in coords:
             coords[str(d)] = list(range(da.sizes[d]))
             coord_dims[str(d)] = [str(d)]
-    return {
+    out = {
         "variable": None if da.name is None else str(da.name),
         "units": str(da.attrs.get("units", "")),
         "long_name": str(da.attrs.get("long_name", "")),
@@ -354,6 +355,10 @@ def slice_json(da: xr.DataArray) -> dict[str, Any]:
         "scalars": scalars,
         "values": _jsonable(da.values),
     }
+    if "flag_meanings" in da.attrs:
+        out["flag_values"] = _jsonable(np.atleast_1d(da.attrs.get("flag_values", [])))
+        out["flag_meanings"] = str(da.attrs["flag_meanings"]).split()
+    return out
 
 
 # --------------------------------------------------------------------------- bands

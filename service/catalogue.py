@@ -3,6 +3,10 @@
 SQLAlchemy 2 on any URL: a SQLite file in the data dir by default, PostgreSQL (or anything
 SQLAlchemy speaks) through ``IMPACTCELL_DATABASE_URL``. Access goes through the plain methods of
 :class:`Catalogue`; callers never see sessions.
+
+Tables are created with ``create_all``, which never changes an existing table. Until the schema
+moves to migrations (Alembic), a column added since a catalogue was created is added at startup
+by :func:`_add_missing_columns` (additive, with a server default, so old rows read as 0).
 """
 
 from __future__ import annotations
@@ -25,11 +29,13 @@ from sqlalchemy import (
     delete,
     event,
     func,
+    inspect,
     select,
+    text,
     update,
 )
 from sqlalchemy.engine import Engine
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy.exc import DBAPIError, IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
 __all__ = [
@@ -72,6 +78,8 @@ class StudyRow(_Base):
     points_done: Mapped[int] = mapped_column(Integer, default=0)
     points_failed: Mapped[int] = mapped_column(Integer, default=0)
     points_irregular: Mapped[int] = mapped_column(Integer, default=0)
+    # Added with solver version 2 (outcomes); catalogues created before get it at startup.
+    points_unsettled: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
     submitted_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
     started_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True))
     finished_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True))
@@ -129,6 +137,7 @@ def _study_dict(r: StudyRow) -> dict[str, Any]:
         "points_done": r.points_done,
         "points_failed": r.points_failed,
         "points_irregular": r.points_irregular,
+        "points_unsettled": r.points_unsettled,
         "submitted_at": _iso(r.submitted_at),
         "started_at": _iso(r.started_at),
         "finished_at": _iso(r.finished_at),
@@ -167,6 +176,7 @@ class Catalogue:
         if url.startswith("sqlite"):
             event.listen(self.engine, "connect", _sqlite_pragmas)
         _Base.metadata.create_all(self.engine)
+        _add_missing_columns(self.engine)
         self._session = sessionmaker(self.engine, expire_on_commit=False)
 
     def close(self) -> None:
@@ -194,7 +204,8 @@ class Catalogue:
                 row = StudyRow(
                     id=study_id, name=name, definition=definition, status="queued",
                     points_total=points_total, points_done=0, points_failed=0,
-                    points_irregular=0, submitted_at=utcnow(), failures="[]", seq=seq,
+                    points_irregular=0, points_unsettled=0, submitted_at=utcnow(),
+                    failures="[]", seq=seq,
                 )  # fmt: skip
                 s.add(row)
                 s.flush()
@@ -393,8 +404,42 @@ class Catalogue:
             s.execute(delete(LeaseRow).where(LeaseRow.name == name, LeaseRow.holder == holder))
 
 
-def _escape_like(text: str) -> str:
-    return text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
+def _escape_like(value: str) -> str:
+    return value.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
+
+
+def _add_missing_columns(engine: Engine) -> list[str]:
+    """Add the model's columns that an existing table lacks; returns ``table.column`` added.
+
+    Only additive columns with a server default are ever added (old rows get the default), so
+    this is safe on SQLite and PostgreSQL alike and with several processes starting at once
+    (whoever adds a column second finds it there).
+    """
+    added: list[str] = []
+    for table in _Base.metadata.sorted_tables:
+        have = {c["name"] for c in inspect(engine).get_columns(table.name)}
+        for col in table.columns:
+            if col.name in have:
+                continue
+            if col.server_default is None:
+                raise RuntimeError(
+                    f"catalogue table {table.name} lacks column {col.name}, which has no "
+                    "server default to add it with; migrate the catalogue by hand"
+                )
+            kind = col.type.compile(dialect=engine.dialect)
+            default = col.server_default.arg.text  # type: ignore[attr-defined]
+            null = "" if col.nullable else " NOT NULL"
+            ddl = f"ALTER TABLE {table.name} ADD COLUMN {col.name} {kind} DEFAULT {default}{null}"
+            try:
+                with engine.begin() as conn:
+                    conn.execute(text(ddl))
+            except DBAPIError:
+                # Another process added it first; anything else is a real error.
+                have = {c["name"] for c in inspect(engine).get_columns(table.name)}
+                if col.name not in have:
+                    raise
+            added.append(f"{table.name}.{col.name}")
+    return added
 
 
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:

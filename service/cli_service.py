@@ -167,6 +167,9 @@ def _cmd_status(args: argparse.Namespace) -> int:
         if args.id:
             for k in ("submitted_at", "started_at", "finished_at", "wall_s", "error"):
                 print(f"  {k:<13} {r[k]}")
+            # outcomes of the points (counted when the study finishes)
+            print(f"  {'irregular':<13} {r.get('points_irregular', 0):,}")
+            print(f"  {'unsettled':<13} {r.get('points_unsettled', 0):,}")
             for f in r["failures"][:5]:
                 print(f"  failed point {f['coords']}: {f['reason']}")
     return 0
@@ -213,7 +216,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     finally:
         server.stop()
     print(f"{rec['points_total']:,} points in {time.perf_counter() - t0:.1f} s "
-          f"({rec['points_failed']} failed, {rec['points_irregular']} irregular)")  # fmt: skip
+          f"({rec['points_failed']} failed, {rec['points_irregular']} irregular, "
+          f"{rec.get('points_unsettled', 0)} unsettled)")  # fmt: skip
     for band in edges:
         spans = ", ".join(f"{a:.3g}–{b:.3g}" for a, b in band["bands"]) or "none"
         print(f"  gap {band['y']:g}: Γ < 0 dB for γ_r in {spans}")

@@ -70,6 +70,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     print(f"computed   {s.computed:,}{resumed}")
     print(f"failed     {s.failed:,}")
     print(f"irregular  {s.irregular:,}")
+    print(f"unsettled  {s.unsettled:,}")
     print(f"time       {s.wall_s:.2f} s wall, {s.kernel_s:.2f} s in kernels")
     print(f"file       {s.path}")
     return 0
@@ -78,7 +79,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from service.store import open_results, summarize
+    from service.store import OUTCOMES, open_results, summarize
 
     ds = open_results(args.file)
     if args.json:
@@ -91,10 +92,8 @@ def _cmd_show(args: argparse.Namespace) -> int:
         f"created    {a.get('created', '?')}  solver {a.get('solver_version', '?')}  "
         f"impactcell {a.get('impactcell_version', '?')}  git {a.get('git_commit', '?')}"
     )
-    print(
-        f"points     {counts['points']:,}  failed {counts['failed']:,}  "
-        f"irregular {counts.get('irregular', 0):,}"
-    )
+    outcomes = "  ".join(f"{k} {counts[k]:,}" for k in OUTCOMES if k != "failed" and k in counts)
+    print(f"points     {counts['points']:,}  failed {counts['failed']:,}  {outcomes}".rstrip())
     sizes = ", ".join(f"{k}={v}" for k, v in ds.sizes.items() if k != "stop")
     print(f"dimensions {sizes or '-'}")
     for name, c in ds.coords.items():

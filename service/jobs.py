@@ -143,12 +143,13 @@ class JobManager:
             finally:
                 self.current = None
 
-    def _dask_client(self) -> Any:
+    def _dask_client(self, method: str) -> Any:
         if self._client is None:
             from service.runner import make_client
 
+            # An embedded cluster starts after ``method``'s kernels are in numba's cache here.
             self._client, self._cluster = make_client(
-                self.settings.scheduler, self.settings.workers
+                self.settings.scheduler, self.settings.workers, method=method
             )
         return self._client
 
@@ -183,7 +184,8 @@ class JobManager:
         self.catalogue.set_status_if(
             sid, ("running",), "finished", finished_at=utcnow(), wall_s=summary.wall_s,
             points_done=summary.points, points_failed=summary.failed,
-            points_irregular=summary.irregular, failures=_json(failures),
+            points_irregular=summary.irregular, points_unsettled=summary.unsettled,
+            failures=_json(failures),
         )  # fmt: skip
 
     def _execute(
@@ -208,7 +210,7 @@ class JobManager:
                 last[0] = now
                 self.catalogue.update_study(sid, points_done=done, failures=_json(failures))
 
-        client = None if study.size == 0 else self._dask_client()
+        client = None if study.size == 0 else self._dask_client(study.solver.method)
         return run_study(
             study,
             self.settings.data_dir,

@@ -5,26 +5,32 @@ one extra top-level block, ``regression:``, that :func:`load_suite` removes befo
 :func:`service.study.parse_study` (so it does not change the study id)::
 
     regression:
-      tolerances:                       # at points periodic in both runs
+      tolerances:                       # at points linear or periodic in both runs
         transmittance_db: {abs: 1.0e-3}     # |new - old| <= abs + rel * |old|
         theta_eff: {abs: 1.0e-3, rel: 1.0e-3}
         response_period: {exact: true}      # identical (missing == missing)
-      irregular:                        # distributions over irregular points
+      irregular:                        # distributions over points irregular in both runs
         transmittance_db: {median_shift: 0.5, quantile_shift: 1.0, quantiles: [0.25, 0.5, 0.75]}
 
 Variables not listed keep their defaults (:data:`DEFAULT_TOLERANCES`,
-:data:`DEFAULT_IRREGULAR`). Besides the tolerances, a point that failed now but not in the
-baseline, and a point that switched between periodic and irregular, are regressions.
+:data:`DEFAULT_IRREGULAR`). Every point is first compared by its ``outcome`` class: linear or
+periodic, irregular, unsettled, failed. A point whose class changed (periodic <-> irregular,
+anything <-> failed, irregular <-> unsettled, ...) is a regression, reported with its old and new
+outcome. Points unsettled in both runs are not compared (their numbers are not proven).
 
 Irregular points are compared by distribution, because their values depend on every bit of a
 chaotic trajectory. ``median_shift`` bounds the median of the paired differences (new - old at
 points irregular in both runs; robust with few points and insensitive to how Γ varies along
-the grid); ``quantile_shift`` bounds the shift of the quantiles of each run's own irregular
+the grid); ``quantile_shift`` bounds the shift of the quantiles of each run's values at those
 points; ``ks_pvalue`` (optional) fails when a two-sample Kolmogorov-Smirnov test gives a smaller
-p-value. A check with fewer than ``min_points`` points on either side is skipped (and says so).
+p-value. A check with fewer than ``min_points`` points is skipped (and says so).
 
 Baselines are ``<baselines>/<study-file-stem>.nc``: the comparison variables and coordinates of
-a results file, with its provenance attributes and ``baseline_created``.
+a results file, with its provenance attributes and ``baseline_created``. A baseline made by
+another solver version (``solver_version`` attribute; files of solver version 1 have no
+``outcome``) is not comparable: the study is reported as an error telling to re-cut the
+baselines with ``impactcell nightly --update-baseline``, and the differences found (reading an
+old baseline's outcome from ``response_period``: 0 = irregular) are listed for information.
 """
 
 from __future__ import annotations
@@ -45,8 +51,18 @@ import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic import model_validator as _model_validator
 
-from service.store import VARIABLES, atomic_write, data_root, encoding, open_results
+from service.store import (
+    OUTCOMES,
+    VARIABLES,
+    atomic_write,
+    data_root,
+    encoding,
+    open_results,
+    outcome_counts,
+    outcome_names,
+)
 from service.study import Integer, Real, Study, StudyError, _message, _path, parse_study
+from worker.simulate import SOLVER_VERSION
 
 __all__ = [
     "DEFAULT_BASELINES",
@@ -78,8 +94,14 @@ COMPARABLE = tuple(
 )
 # Variables a distribution check may name.
 DISTRIBUTABLE = tuple(k for k, v in VARIABLES.items() if v.group and v.kind == "float")
-# Always kept in a baseline: which points failed and which were periodic.
-_ALWAYS = ("failed", "response_period")
+# Variables of solver version 1 that are gone, and what replaced them (for the error message).
+_RENAMED = {"theta_eff_mean": "theta_eff_slope", "converged": "outcome"}
+# Always kept in a baseline: how every point ended (and, for older readers, failed/period).
+_ALWAYS = ("outcome", "response_period", "failed")
+# Outcome classes: a point moving between classes is a regression.
+_STEADY = ("linear", "periodic")
+_CLASS = {k: ("linear/periodic" if k in _STEADY else k) for k in OUTCOMES}
+_CLASSES_TEXT = "same outcome class (linear/periodic, irregular, unsettled, failed)"
 
 
 # --------------------------------------------------------------------------- the regression block
@@ -87,6 +109,11 @@ _ALWAYS = ("failed", "response_period")
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _replaced(name: str) -> str:
+    new = _RENAMED.get(str(name))
+    return f" (replaced by {new} in solver version 2)" if new else ""
 
 
 class Tolerance(_Strict):
@@ -168,7 +195,8 @@ class RegressionSpec(_Strict):
             for k in v:
                 if k not in COMPARABLE:
                     raise ValueError(
-                        f"unknown variable {k!r}; tolerances may name {', '.join(COMPARABLE)}"
+                        f"unknown variable {k!r}{_replaced(k)}; tolerances may name "
+                        f"{', '.join(COMPARABLE)}"
                     )
         return v
 
@@ -179,7 +207,7 @@ class RegressionSpec(_Strict):
             for k in v:
                 if k not in DISTRIBUTABLE:
                     raise ValueError(
-                        f"unknown variable {k!r}; irregular checks may name "
+                        f"unknown variable {k!r}{_replaced(k)}; irregular checks may name "
                         f"{', '.join(DISTRIBUTABLE)}"
                     )
         return v
@@ -324,15 +352,15 @@ def _num(x: Any) -> float | int | None:
 class Change:
     """One point that differs from the baseline.
 
-    kind: ``moved`` (beyond tolerance), ``switch`` (periodic <-> irregular), ``new-failure``,
-    ``recovered`` (failed in the baseline only; not a regression).
+    kind: ``moved`` (a variable beyond its tolerance; old and new values) or ``outcome`` (the
+    outcome class changed: old and new outcome names, ``note`` the new point's reason if any).
     """
 
     kind: str
     variable: str
     coords: dict[str, float]
-    old: float | None
-    new: float | None
+    old: float | str | None
+    new: float | str | None
     delta: float | None
     tolerance: str
     regression: bool = True
@@ -455,33 +483,60 @@ def _provenance(ds: xr.Dataset) -> dict[str, str]:
     return {k: str(ds.attrs[k]) for k in keys if k in ds.attrs}
 
 
+def _outcomes(ds: xr.Dataset) -> np.ndarray:
+    """Outcome names of every point (str array in the dims of ``failed``).
+
+    Datasets of solver version 1 have no ``outcome``: it is read from ``failed`` and
+    ``response_period`` (``periodic`` for a period > 0, ``irregular`` for 0, which then also
+    covers what is now ``unsettled``).
+    """
+    dims = ds["failed"].dims
+    if "outcome" in ds:
+        return outcome_names(ds["outcome"].transpose(*dims))
+    failed = ds["failed"].values.astype(bool)
+    rp = np.asarray(ds["response_period"].transpose(*dims).values, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return np.where(failed, "failed", np.where(rp > 0, "periodic", "irregular")).astype(str)
+
+
 def _counts(ds: xr.Dataset) -> dict[str, int]:
     failed = ds["failed"].values.astype(bool)
-    rp = ds["response_period"].values
-    return {
-        "points": int(failed.size),
-        "failed": int(failed.sum()),
-        "periodic": int(np.sum(~failed & (rp > 0))),
-        "irregular": int(np.sum(~failed & (rp == 0))),
-    }
+    return {"points": int(failed.size), **outcome_counts(_outcomes(ds))}
 
 
 def _grid_problems(new: xr.Dataset, old: xr.Dataset) -> list[str]:
     out = []
     for ds, which in ((new, "new results"), (old, "baseline")):
-        missing = [v for v in _ALWAYS if v not in ds]
+        # ``outcome`` may be read from these two in files that predate it
+        missing = [v for v in ("failed", "response_period") if v not in ds]
         if missing:
             out.append(f"{which} lack {', '.join(missing)}")
     if out:
         return out
     dn, do = new["failed"].dims, old["failed"].dims
-    if dn != do:
+    if set(dn) != set(do):
         return [f"grid axes differ: baseline {list(do)}, new {list(dn)}"]
     for d in dn:
         a, b = new[d].values, old[d].values
         if a.shape != b.shape or not np.allclose(a, b, rtol=1e-12, atol=0):
             return [f"grid axis {d} differs: baseline {b.size} values, new {a.size} values"]
     return []
+
+
+def _stale(new: xr.Dataset, baseline: xr.Dataset) -> str | None:
+    """Why the baseline is from another solver version (None: it is not)."""
+    v_old, v_new = baseline.attrs.get("solver_version"), new.attrs.get("solver_version")
+    mismatch = v_old is not None and v_new is not None and str(v_old) != str(v_new)
+    if "outcome" in baseline and not mismatch:
+        return None
+    made = f"solver version {v_old}" if v_old is not None else "an unknown solver version"
+    lacks = "" if "outcome" in baseline else " and has no outcome variable"
+    return (
+        f"the baseline predates solver version {v_new or SOLVER_VERSION}: it was made with "
+        f"{made}{lacks}, so its numbers are not comparable with today's; re-cut the baselines "
+        "deliberately with `impactcell nightly --update-baseline` (the report then lists what "
+        "changed)"
+    )
 
 
 def _definition(ds: xr.Dataset) -> dict[str, Any] | None:
@@ -566,8 +621,9 @@ def compare(
     Returns
     -------
     StudyComparison
-        ``passed``, ``failed`` (with every moved point, its coordinates, old and new values)
-        or ``error`` (grids or definitions differ).
+        ``passed``, ``failed`` (with every moved point, its coordinates, old and new values or
+        outcomes) or ``error`` (grids or definitions differ, or the baseline is from another
+        solver version: then the differences are listed, but none counts as a regression).
     """
     spec = spec or RegressionSpec()
     out = StudyComparison(
@@ -577,9 +633,10 @@ def compare(
         new_info=_provenance(new),
         baseline_info=_provenance(baseline),
     )
+    stale = _stale(new, baseline)
     problems = _grid_problems(new, baseline)
     if problems:
-        out.status, out.error = "error", "; ".join(problems)
+        out.status, out.error = "error", "; ".join(([stale] if stale else []) + problems)
         return out
     out.points = int(new["failed"].size)
     out.counts = {"new": _counts(new), "baseline": _counts(baseline)}
@@ -588,13 +645,15 @@ def compare(
         differ: list[str] = []
         one_sided: list[str] = []
         _diff(db, dn, "", differ, one_sided)
-        if differ:
+        if differ and not stale:
             out.status = "error"
             out.error = (
                 f"the baseline was made from a different study definition (differs in "
                 f"{', '.join(differ)}); if the change is deliberate, rerun with --update-baseline"
             )
             return out
+        if differ:  # expected across solver versions (their defaults change)
+            out.notes.append(f"definition differs from the baseline's in {', '.join(differ)}")
         if one_sided:  # e.g. a solver setting added since, at its default
             out.notes.append(f"definition keys in only one of the runs: {', '.join(one_sided)}")
     for key in ("solver_version", "impactcell_version", "git_commit"):
@@ -603,34 +662,23 @@ def compare(
             out.notes.append(f"{key}: baseline {a}, new {b}")
 
     dims = tuple(str(d) for d in new["failed"].dims)
-    f_new = new["failed"].values.astype(bool)
-    f_old = baseline["failed"].transpose(*dims).values.astype(bool)
-    rp_new = np.asarray(new["response_period"].values, dtype=np.float64)
-    rp_old = np.asarray(baseline["response_period"].transpose(*dims).values, dtype=np.float64)
-    ok = ~f_new & ~f_old
-    periodic = ok & (rp_new > 0) & (rp_old > 0)
-    irr_new = ~f_new & (rp_new == 0)
-    irr_old = ~f_old & (rp_old == 0)
+    o_new, o_old = _outcomes(new), _outcomes(baseline.transpose(*dims, ...))
+    c_new = np.vectorize(_CLASS.get, otypes=[object])(o_new)
+    c_old = np.vectorize(_CLASS.get, otypes=[object])(o_old)
+    steady = np.isin(o_new, _STEADY) & np.isin(o_old, _STEADY)
+    irr_new, irr_old = o_new == "irregular", o_old == "irregular"
     grid = new["failed"]
     reason = new["reason"].values if "reason" in new else None
 
-    for i in np.flatnonzero(f_new & ~f_old):
+    for i in np.flatnonzero(c_new != c_old):
         note = str(reason.flat[i]) if reason is not None else ""
         out.changes.append(
-            Change("new-failure", "failed", _coords_at(grid, int(i)), 0, 1, None,
-                   "must not fail", note=note)
+            Change("outcome", "outcome", _coords_at(grid, int(i)), str(o_old.flat[i]),
+                   str(o_new.flat[i]), None, _CLASSES_TEXT, note=note)
         )  # fmt: skip
-    for i in np.flatnonzero(f_old & ~f_new):
-        out.changes.append(
-            Change("recovered", "failed", _coords_at(grid, int(i)), 1, 0, None,
-                   "failed in the baseline only", regression=False)
-        )  # fmt: skip
-    for i in np.flatnonzero(ok & ((rp_new == 0) != (rp_old == 0))):
-        o, n = _num(rp_old.flat[i]), _num(rp_new.flat[i])
-        out.changes.append(
-            Change("switch", "response_period", _coords_at(grid, int(i)), o, n, None,
-                   "periodic <-> irregular (0 = irregular)")
-        )  # fmt: skip
+    unsettled = int(np.sum((o_new == "unsettled") & (o_old == "unsettled")))
+    if unsettled:
+        out.notes.append(f"{unsettled} points unsettled in both runs (not compared)")
 
     for var, tol in spec.effective_tolerances().items():
         lacking = [w for w, ds in (("baseline", baseline), ("new results", new)) if var not in ds]
@@ -641,7 +689,7 @@ def compare(
             continue
         a, old_v = _aligned(new, baseline, var)
         new_v = np.asarray(a.values, dtype=np.float64)
-        mask = _on(periodic, a, dims)
+        mask = _on(steady, a, dims)
         moved = _moved(old_v, new_v, tol) & mask
         for i in np.flatnonzero(moved):
             o, n = old_v.flat[i], new_v.flat[i]
@@ -650,6 +698,15 @@ def compare(
                 Change("moved", var, _coords_at(a, int(i)), _num(o), _num(n), _num(delta),
                        tol.describe())
             )  # fmt: skip
+
+    if stale:
+        # Not comparable: what differs is listed for information (and for --update-baseline).
+        for c in out.changes:
+            c.regression = False
+        out.problems.clear()
+        out.notes.append("distribution checks skipped: the baseline is from another solver")
+        out.status, out.error = "error", stale
+        return out
 
     for var, chk in spec.effective_irregular().items():
         if var not in new or var not in baseline:
@@ -673,18 +730,23 @@ def _distribution(
     irr_old: np.ndarray,
     irr_new: np.ndarray,
 ) -> list[DistributionCheck]:
-    """The distribution checks of one variable over the irregular points of both runs."""
-    xo = old[irr_old & np.isfinite(old)]
-    xn = new[irr_new & np.isfinite(new)]
+    """The distribution checks of one variable over the points irregular in both runs.
+
+    ``n_old`` and ``n_new`` count each run's irregular points; the checks use the points
+    irregular in both (``n_paired``), where a point that changed class is already a regression.
+    """
     pair = irr_old & irr_new & np.isfinite(old) & np.isfinite(new)
-    d = new[pair] - old[pair]
-    no, nn, npair = int(xo.size), int(xn.size), int(d.size)
+    xo, xn = old[pair], new[pair]
+    d = xn - xo
+    no, nn, npair = int(np.sum(irr_old)), int(np.sum(irr_new)), int(d.size)
     out: list[DistributionCheck] = []
 
-    def add(check: str, value: float | None, limit: float, passed: bool, n: int, **detail: Any):
+    def add(check: str, value: float | None, limit: float, passed: bool, **detail: Any):
         skipped = ""
-        if n < chk.min_points:
-            skipped = f"{n} irregular points, fewer than min_points = {chk.min_points}"
+        if npair < chk.min_points:
+            skipped = (
+                f"{npair} points irregular in both runs, fewer than min_points = {chk.min_points}"
+            )
             value, passed = None, True
         out.append(
             DistributionCheck(var, check, _num(value), limit, passed, no, nn, npair, skipped,
@@ -693,14 +755,12 @@ def _distribution(
 
     if chk.median_shift is not None:
         v = float(abs(np.median(d))) if npair else None
-        add("median_shift", v, chk.median_shift, v is not None and v <= chk.median_shift, npair,
+        add("median_shift", v, chk.median_shift, v is not None and v <= chk.median_shift,
             mean_shift=_num(np.mean(d)) if npair else None)  # fmt: skip
     if chk.quantile_shift is not None:
-        n = min(no, nn)
-        if n:
+        if npair:
             qo, qn = np.quantile(xo, chk.quantiles), np.quantile(xn, chk.quantiles)
-            shifts = qn - qo
-            v = float(np.max(np.abs(shifts)))
+            v = float(np.max(np.abs(qn - qo)))
             detail = {
                 f"q{q:g}": {"old": _num(a), "new": _num(b)}
                 for q, a, b in zip(chk.quantiles, qo, qn, strict=True)
@@ -708,15 +768,14 @@ def _distribution(
         else:
             v, detail = None, {}
         add("quantile_shift", v, chk.quantile_shift, v is not None and v <= chk.quantile_shift,
-            n, **detail)  # fmt: skip
+            **detail)  # fmt: skip
     if chk.ks_pvalue is not None:
-        n = min(no, nn)
         p = None
-        if n:
+        if npair:
             from scipy.stats import ks_2samp
 
             p = float(ks_2samp(xo, xn).pvalue)
-        add("ks_pvalue", p, chk.ks_pvalue, p is not None and p >= chk.ks_pvalue, n)
+        add("ks_pvalue", p, chk.ks_pvalue, p is not None and p >= chk.ks_pvalue)
     return out
 
 
@@ -852,19 +911,17 @@ class NightlyReport:
             "",
             self.summary() + ".",
             "",
-            "| study | points | periodic | irregular | failed | status | changes | "
-            "distribution checks |",
-            "|---|---|---|---|---|---|---|---|",
+            "| study | points | linear | periodic | irregular | unsettled | failed | status | "
+            "changes | distribution checks |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for s in self.studies:
             c = s.counts.get("new", {})
             n_checks = len(s.distribution)
             checks = f"{n_checks - len(s.failed_checks)}/{n_checks} ok" if n_checks else "-"
             changes = len(s.regressions) if not self.update_baseline else len(s.changes)
-            lines.append(
-                f"| {s.study} | {s.points} | {c.get('periodic', '')} | {c.get('irregular', '')} "
-                f"| {c.get('failed', '')} | {s.status} | {changes} | {checks} |"
-            )
+            per = " | ".join(str(c.get(k, "")) for k in OUTCOMES)
+            lines.append(f"| {s.study} | {s.points} | {per} | {s.status} | {changes} | {checks} |")
         rows = [(s, ch) for s in self.studies for ch in s.changes]
         if rows:
             title = "Changes written to the baselines" if self.update_baseline else "Moved points"
@@ -882,7 +939,8 @@ class NightlyReport:
                     continue
                 lines.append(
                     f"| {s.study} | {_coords_text(ch.coords)} | {ch.variable} | {ch.kind} | "
-                    f"{_fmt(ch.old)} | {_fmt(ch.new)} | {_fmt(ch.delta, 3)} | {ch.tolerance} |"
+                    f"{_fmt(ch.old)} | {_fmt(ch.new)} | "
+                    f"{'-' if ch.kind == 'outcome' else _fmt(ch.delta, 3)} | {ch.tolerance} |"
                 )
             for study, n in shown.items():
                 if n > self.max_rows:

@@ -289,7 +289,8 @@ def effective_mass_png(
     x: str | None = None,
     nearest: bool = False,
 ) -> bytes:
-    """Effective mass ratios θ_eff (Eq. 35) and θ_eff_mean (Eq. 36) against ``x`` (paper Fig. 6).
+    """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): from first harmonics (Eq. 35)
+    and, as a second estimator, from the slope of the velocity phase portrait.
 
     Negative effective mass (θ_eff < 0) is shaded, with the shaded intervals' edges
     interpolated like band edges. When |θ_eff| spans more than two decades the y axis is
@@ -298,7 +299,7 @@ def effective_mass_png(
     Parameters
     ----------
     ds : xarray.Dataset
-        A results dataset with ``theta_eff`` (``theta_eff_mean`` is drawn when present).
+        A results dataset with ``theta_eff`` (``theta_eff_slope`` is drawn when present).
     sel : mapping, optional
         Values of every dimension other than ``x``.
     x : str, optional
@@ -313,9 +314,9 @@ def effective_mass_png(
     """
     x = x or _default_x(ds, "theta_eff")
     harmonic = slice_axes(ds, "theta_eff", [x], sel, nearest).sortby(x)
-    mean = (
-        slice_axes(ds, "theta_eff_mean", [x], sel, nearest).sortby(x)
-        if "theta_eff_mean" in ds.data_vars
+    slope = (
+        slice_axes(ds, "theta_eff_slope", [x], sel, nearest).sortby(x)
+        if "theta_eff_slope" in ds.data_vars
         else None
     )
     xv = harmonic[x].values.astype(np.float64)
@@ -331,20 +332,20 @@ def effective_mass_png(
             label="θ_eff < 0 (negative effective mass)" if k == 0 else None,
         )
     ax.plot(xv, h, marker=".", ms=3, lw=1.2, color="C0", label="θ_eff, first harmonics (Eq. 35)")
-    if mean is not None and np.isfinite(mean.values).any():
+    if slope is not None and np.isfinite(slope.values).any():
         ax.plot(
             xv,
-            mean.values,
+            slope.values,
             marker="o",
             ms=3,
             lw=1.0,
             ls="--",
             mfc="none",
             color="C1",
-            label="θ_eff, time average (Eq. 36)",
+            label="θ_eff, phase-portrait slope",
         )
     ax.axhline(0.0, color="k", lw=0.8)
-    both = np.concatenate([h, mean.values if mean is not None else []])
+    both = np.concatenate([h, slope.values if slope is not None else []])
     both = np.abs(both[np.isfinite(both)])
     if both.size and both.max() > 100 * max(np.median(both), 1.0):
         ax.set_yscale("symlog", linthresh=1.0)

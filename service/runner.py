@@ -6,6 +6,11 @@ single-threaded worker process per core); given a scheduler address (``--schedul
 grid points (one ``worker.simulate.simulate_chunk`` call per task); each finished chunk is
 written to the store as soon as it arrives, so a rerun after a crash computes only what is
 missing. Results do not depend on the chunk size: each point is computed on its own.
+
+Workers never compile the same kernel twice: before an embedded cluster starts (and before the
+workers warm up) this process compiles the method's numba kernels, or loads them from numba's
+on-disk cache, so the worker processes load that cache instead of each compiling the same
+kernels in parallel.
 """
 
 from __future__ import annotations
@@ -15,15 +20,22 @@ import os
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from service.store import StudyStore, iter_chunk_ranges, open_results, results_from_records
+from service.store import (
+    StudyStore,
+    iter_chunk_ranges,
+    open_results,
+    outcome_counts,
+    outcome_names,
+    results_from_records,
+)
 from service.study import Study
+from worker import simulate
 from worker.simulate import failed_result, simulate_chunk
+from worker.solvers.settings import DEFAULT_METHOD
 
 __all__ = [
     "DEFAULT_CHUNK_SIZE",
@@ -37,8 +49,9 @@ __all__ = [
 
 DEFAULT_CHUNK_SIZE = 32  # points per task: ~0.1–0.6 s at 2–20 ms a point, ≫ dask's ~1 ms
 TASK_RETRIES = 2
-_WARM_POINT = {"theta": 0.3, "sigma": 0.05, "gamma_s": 1.0, "gamma_r": 1.0, "g1": 0.1, "g2": 0.1}
-_WARM_SOLVER = {"steps_per_period": 64, "max_periods": 8, "window": 2}
+# Single-threaded BLAS in worker processes: dask's ``distributed.nanny.pre-spawn-environ``
+# default already sets these to 1 before a worker process starts; only missing ones are added.
+_ONE_BLAS_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 Progress = Callable[[int, int], None]  # (points done, total points)
 ChunkDone = Callable[[int, int, list[dict[str, Any]]], None]  # (start, stop, records)
@@ -57,13 +70,16 @@ class RunSummary:
     points: int
     computed: int  # points computed by this run (the rest came from earlier, interrupted runs)
     failed: int
-    irregular: int
+    irregular: int  # outcome irregular: converged statistics of a non-periodic response
+    unsettled: int  # outcome unsettled: the period budget ran out before the point ended
     wall_s: float
     kernel_s: float  # sum of per-point kernel times of the points computed now
     workers: int
     chunk_size: int
     reused: bool = False  # the results file already existed
     cancelled: bool = False  # stopped on request: finished chunks kept, no results file yet
+    # points by outcome (linear, periodic, irregular, unsettled, failed); empty when unknown
+    outcomes: dict[str, int] = field(default_factory=dict)
 
 
 def default_chunk_size(points: int, workers: int) -> int:
@@ -71,18 +87,44 @@ def default_chunk_size(points: int, workers: int) -> int:
     return max(1, min(DEFAULT_CHUNK_SIZE, math.ceil(points / max(1, 4 * workers))))
 
 
-def warm_up(client: Any, method: str = "exponential") -> None:
+def warm_up(client: Any, method: str = DEFAULT_METHOD) -> None:
     """Compile/load a method's numba kernels in every worker before timing anything."""
-    client.run(simulate_chunk, [_WARM_POINT], {**_WARM_SOLVER, "method": method})
+    client.run(simulate.warm_up, method)
 
 
-def make_client(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
-    """A dask client on ``scheduler`` (or ``IMPACTCELL_SCHEDULER``), else on a new LocalCluster."""
+def _is_local(client: Any) -> bool:
+    """Whether the client's workers run on this machine (a LocalCluster: they share its
+    numba cache)."""
+    from dask.distributed import LocalCluster
+
+    return isinstance(getattr(client, "cluster", None), LocalCluster)
+
+
+def _worker_environ() -> None:
+    """Make sure worker processes start with one BLAS thread (only what dask does not set)."""
+    import dask
+
+    env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    missing = {k: 1 for k in _ONE_BLAS_THREAD if k not in env}
+    if missing:
+        dask.config.set({"distributed.nanny.pre-spawn-environ": {**env, **missing}})
+
+
+def make_client(
+    scheduler: str | None, workers: int | None, *, method: str | None = DEFAULT_METHOD
+) -> tuple[Any, Any]:
+    """A dask client on ``scheduler`` (or ``IMPACTCELL_SCHEDULER``), else on a new LocalCluster.
+
+    Before a LocalCluster starts, ``method``'s kernels (``None``: every method's) are compiled
+    or loaded here, so its workers find them in numba's on-disk cache.
+    """
     from dask.distributed import Client, LocalCluster
 
     address = scheduler or os.environ.get("IMPACTCELL_SCHEDULER") or None
     if address:
         return Client(address, timeout="30s"), None
+    simulate.warm_up(method)
+    _worker_environ()
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(
         n_workers=n,
@@ -167,10 +209,13 @@ def run_study(
     chunk = chunk_size or DEFAULT_CHUNK_SIZE
     try:
         if n_missing and not serial:
+            method = study.solver.method
             if client is None:
-                own_client, own_cluster = make_client(scheduler, workers)
+                own_client, own_cluster = make_client(scheduler, workers, method=method)
                 client = own_client
-            warm_up(client, study.solver.method)
+            elif _is_local(client):
+                simulate.warm_up(method)  # fill numba's cache before the workers look in it
+            warm_up(client, method)
             nworkers = _nthreads(client)
         if chunk_size is None:
             chunk = default_chunk_size(n_missing, nworkers)
@@ -202,7 +247,7 @@ def run_study(
         except Cancelled:
             return RunSummary(
                 study_id=study.id, path=store.results_path, points=total,
-                computed=done - (total - n_missing), failed=0, irregular=0,
+                computed=done - (total - n_missing), failed=0, irregular=0, unsettled=0,
                 wall_s=time.perf_counter() - t0, kernel_s=kernel_s,
                 workers=0 if serial else nworkers, chunk_size=chunk, cancelled=True,
             )  # fmt: skip
@@ -212,7 +257,8 @@ def run_study(
         if own_cluster is not None:
             own_cluster.close()
 
-    ds = results_from_records(study, store.collect())
+    cols = store.collect()
+    ds = results_from_records(study, cols)
     store.write_results(ds)
     if not store.has_retry_chunks():  # keep task failures around for the next run to retry
         store.remove_chunks()
@@ -225,6 +271,7 @@ def run_study(
         kernel_s=kernel_s,
         workers=0 if serial else nworkers,
         chunk=chunk,
+        outcomes=outcome_counts(outcome_names(cols["outcome"])),
     )
 
 
@@ -302,21 +349,26 @@ def _summary(
     workers: int,
     chunk: int,
     reused: bool = False,
+    outcomes: dict[str, int] | None = None,
 ) -> RunSummary:
+    """The summary of a finished run; outcomes from the records, else from the dataset (a
+    reused results file stored without the ``response`` group has no ``outcome``: no counts)."""
     failed = ds["failed"].values.astype(bool)
-    irregular = 0
-    if "response_period" in ds:
-        irregular = int(np.sum((ds["response_period"].values == 0) & ~failed))
+    if outcomes is None and "outcome" in ds:
+        outcomes = outcome_counts(outcome_names(ds["outcome"]))
+    outcomes = outcomes or {}
     return RunSummary(
         study_id=study.id,
         path=store.results_path,
         points=int(failed.size),
         computed=computed,
         failed=int(failed.sum()),
-        irregular=irregular,
+        irregular=outcomes.get("irregular", 0),
+        unsettled=outcomes.get("unsettled", 0),
         wall_s=time.perf_counter() - t0,
         kernel_s=kernel_s,
         workers=workers,
         chunk_size=chunk,
         reused=reused,
+        outcomes=outcomes,
     )

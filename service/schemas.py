@@ -51,7 +51,10 @@ class StudyOut(BaseModel):
     points_total: int
     points_done: int
     points_failed: int
-    points_irregular: int
+    points_irregular: int = Field(description="points whose outcome is irregular")
+    points_unsettled: int = Field(
+        description="points whose outcome is unsettled (the period budget ran out first)"
+    )
     progress: float = Field(description="points_done / points_total, 0…1")
     submitted_at: str
     started_at: str | None

@@ -10,10 +10,18 @@ Ids are content hashes (:attr:`service.study.Study.id`), never user-chosen names
 written to a temporary name in the same folder, flushed, and renamed into place, so a crash
 (even SIGKILL) never leaves a file that looks complete but is not.
 
-Missing values: a failed point has ``failed = 1``, a ``reason``, and every measured variable
-missing. Floats are NaN in memory and the netCDF ``_FillValue`` on disk (no NaN is written);
-integer variables that can be missing (``response_period``, ``steady_period``) are stored as
-int32 with ``_FillValue = -1`` and read back by xarray as float with NaN.
+How a point ended is ``outcome``: a CF flag variable (int8, ``flag_values`` 0…4 and
+``flag_meanings`` "linear periodic irregular unsettled failed", the order of
+``worker.solvers.settings.OUTCOMES``), never missing. Records carry it as a string, chunk files
+and datasets as its flag value; :func:`outcome_names` reads it back as strings.
+
+Missing values: a failed point has ``failed = 1``, ``outcome = failed``, a ``reason``, and every
+measured variable missing. Some values are missing by nature at points that did not fail:
+``transmittance_db_se`` (only irregular and unsettled points have one), ``floquet_multiplier``
+(only linear and periodic points), ``theta_eff_slope`` (where the phase portrait has no slope).
+Floats are NaN in memory and the netCDF ``_FillValue`` on disk (no NaN is written); integer
+variables that can be missing (``response_period``, ``steady_period``) are stored as int32 with
+``_FillValue = -1`` and read back by xarray as float with NaN.
 """
 
 from __future__ import annotations
@@ -35,14 +43,20 @@ import xarray as xr
 
 from service.study import Study
 from worker.simulate import SOLVER_VERSION
+from worker.solvers.settings import OUTCOMES
 
 __all__ = [
     "CHUNK_FIELDS",
     "FILL_FLOAT",
+    "OUTCOMES",
     "PENDING",
     "StudyStore",
     "VARIABLES",
     "atomic_write",
+    "outcome_attrs",
+    "outcome_codes",
+    "outcome_counts",
+    "outcome_names",
     "package_version",
     "data_root",
     "open_results",
@@ -59,7 +73,7 @@ _CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
 @dataclass(frozen=True)
 class _Var:
     group: str  # outputs group ("" = always stored)
-    kind: str  # float | int | maskint | bool | str
+    kind: str  # float | int | maskint | bool | str | flag (int8 CF flag of OUTCOMES)
     units: str
     long_name: str
     mask: bool = True  # missing where the point failed
@@ -69,7 +83,13 @@ class _Var:
 VARIABLES: dict[str, _Var] = {
     "transmittance_db": _Var(
         "transmittance", "float", "dB",
-        "transmittance Gamma = 20 log10(A_s / (theta gamma_s)) (Eq. 32)",
+        "transmittance Gamma = 20 log10(A_s / (theta gamma_s)) (Eq. 32); the mean over "
+        "measurement windows for irregular and unsettled points",
+    ),
+    "transmittance_db_se": _Var(
+        "transmittance", "float", "dB",
+        "standard error of the transmittance of an irregular or unsettled point (batch means "
+        "over measurement windows); missing for linear and periodic points",
     ),
     "amplitude": _Var(
         "transmittance", "float", "1",
@@ -79,17 +99,28 @@ VARIABLES: dict[str, _Var] = {
         "effective_mass", "float", "1",
         "effective mass ratio from first harmonics at gamma_r (Eq. 35)",
     ),
-    "theta_eff_mean": _Var(
+    "theta_eff_slope": _Var(
         "effective_mass", "float", "1",
-        "time average of the instantaneous effective mass ratio (Eq. 36); missing if undefined",
+        "effective mass ratio from the least-squares slope of the velocity phase portrait, "
+        "(kappa - theta <s_b_dot s_dot> / <s_dot^2>) / (1 + theta); missing if undefined",
+    ),
+    "outcome": _Var(
+        "response", "flag", "1",
+        "how the point ended: linear (closed-form steady state, impact-free), periodic "
+        "(confirmed orbit with impacts), irregular (converged window statistics), unsettled "
+        "(period budget ran out first) or failed",
+        mask=False,
     ),
     "response_period": _Var(
-        "response", "maskint", "1", "response period in excitation periods (0 = irregular)"
+        "response", "maskint", "1",
+        "response period in excitation periods (1 = linear, p = periodic orbit, "
+        "0 = irregular or unsettled)",
     ),
     "impacts_per_period": _Var("response", "float", "1", "impacts per excitation period at stop"),
-    "converged": _Var(
-        "response", "bool", "1", "steady periodic response found within the period budget",
-        mask=False,
+    "floquet_multiplier": _Var(
+        "response", "float", "1",
+        "estimate of the modulus of the dominant Floquet multiplier of the steady response "
+        "(linear and periodic points; missing otherwise)",
     ),
     "periods": _Var("response", "int", "1", "excitation periods simulated", mask=False),
     "steps": _Var("response", "int", "1", "time steps taken", mask=False),
@@ -105,10 +136,57 @@ VARIABLES: dict[str, _Var] = {
     ),
     "failed": _Var("", "bool", "1", "point failed (see reason); its results are missing",
                    mask=False),
-    "reason": _Var("", "str", "1", "why the point failed, or irregular; empty when fine",
-                   mask=False),
+    "reason": _Var("", "str", "1", "why the point failed or is unsettled, or a caveat of an "
+                   "irregular point; empty otherwise", mask=False),
     "wall_s": _Var("", "float", "s", "wall-clock time of the point's kernel", mask=False),
 }  # fmt: skip
+
+
+def outcome_attrs() -> dict[str, Any]:
+    """The CF flag attributes of ``outcome`` (flag values are the indices of ``OUTCOMES``)."""
+    return {
+        "flag_values": np.arange(len(OUTCOMES), dtype=np.int8),
+        "flag_meanings": " ".join(OUTCOMES),
+    }
+
+
+def outcome_codes(names: Iterable[Any]) -> np.ndarray:
+    """Flag values (int8) of outcome names; an unknown name is a ``ValueError``."""
+    index = {k: i for i, k in enumerate(OUTCOMES)}
+    out = []
+    for n in names:
+        try:
+            out.append(index[str(n)])
+        except KeyError:
+            raise ValueError(f"outcome must be one of {', '.join(OUTCOMES)}, got {n!r}") from None
+    return np.array(out, dtype=np.int8)
+
+
+def outcome_names(da: Any) -> np.ndarray:
+    """Outcome names (str array, same shape) of an ``outcome`` flag variable or array.
+
+    The names come from the variable's ``flag_values``/``flag_meanings`` when it has them
+    (a file read back), else from ``OUTCOMES``.
+    """
+    values = np.asarray(getattr(da, "values", da))
+    attrs = getattr(da, "attrs", {}) or {}
+    meanings = str(attrs.get("flag_meanings", "")).split()
+    flags = np.asarray(attrs.get("flag_values", np.arange(len(meanings))), dtype=np.int64).ravel()
+    table = dict(zip(flags.tolist(), meanings, strict=False)) if meanings else {}
+    if not table:
+        table = dict(enumerate(OUTCOMES))
+    codes = values.astype(np.int64)
+    out = np.full(values.shape, "", dtype=object)
+    for code, name in table.items():
+        out[codes == code] = name
+    return out.astype(str)
+
+
+def outcome_counts(names: Any) -> dict[str, int]:
+    """How many points ended with each outcome (every outcome listed, zeros included)."""
+    arr = np.asarray(names).astype(str).ravel()
+    return {k: int(np.sum(arr == k)) for k in OUTCOMES}
+
 
 # Fields kept in chunk files (everything simulate_chunk reports that a dataset may hold).
 CHUNK_FIELDS = tuple(VARIABLES)
@@ -178,7 +256,8 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
 
 
 def _columns(records: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
-    """Per-field arrays of result records; ``None`` becomes NaN (floats) or -1 (ints)."""
+    """Per-field arrays of result records; ``None`` becomes NaN (floats) or -1 (ints), the
+    ``outcome`` string its flag value."""
     n = len(records)
     cols: dict[str, np.ndarray] = {}
     for name, var in VARIABLES.items():
@@ -200,6 +279,8 @@ def _columns(records: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
             )
         elif var.kind == "bool":
             arr = np.array([bool(r.get(name)) for r in records], dtype=bool)
+        elif var.kind == "flag":
+            arr = outcome_codes(r.get(name) for r in records)
         else:
             arr = np.array([str(r.get(name) or "") for r in records], dtype=np.str_)
             if arr.dtype.itemsize == 0:
@@ -442,7 +523,7 @@ def results_from_records(
         for k in _DERIVED:
             v = np.array([p[k] for p in pts], dtype=np.float64)
             attrs = dict(_attrs(k))
-            attrs["long_name"] += " (derived from the physical cell, MODEL.md section 7)"
+            attrs["long_name"] += " (derived from the physical cell, docs/model.md section 8)"
             if k in coords:
                 continue
             arr, kept = v.reshape(shape), list(dims)
@@ -469,9 +550,13 @@ def results_from_records(
             a = a.astype(np.int64)
         elif var.kind == "bool":
             a = a.astype(bool)
+        elif var.kind == "flag":
+            a = a.astype(np.int8)
         else:
             a = np.array([str(x) for x in a], dtype=object)
-        attrs = {"units": var.units, "long_name": var.long_name}
+        attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
+        if var.kind == "flag":
+            attrs.update(outcome_attrs())
         if name == "impacts_per_period":
             data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
         else:
@@ -525,6 +610,8 @@ def encoding(ds: xr.Dataset) -> dict[str, dict[str, Any]]:
             enc[str(name)] = {"dtype": "int32", "_FillValue": FILL_INT, "zlib": True}
         elif kind == "float":
             enc[str(name)] = {"_FillValue": FILL_FLOAT, "zlib": True}
+        elif kind == "flag":
+            enc[str(name)] = {"dtype": "int8", "_FillValue": None, "zlib": True}  # never missing
         else:
             enc[str(name)] = {"zlib": True}
     for name in ds.coords:
@@ -546,12 +633,11 @@ def open_results(path: str | os.PathLike[str]) -> xr.Dataset:
 
 
 def summarize(ds: xr.Dataset) -> dict[str, Any]:
-    """Counts of a results dataset: points, failed, irregular."""
+    """Counts of a results dataset: points, failed, and points by outcome when it is stored."""
     failed = ds["failed"].values.astype(bool)
     out: dict[str, Any] = {"points": int(failed.size), "failed": int(failed.sum())}
-    if "response_period" in ds:
-        rp = ds["response_period"].values
-        out["irregular"] = int(np.sum((rp == 0) & ~failed))
+    if "outcome" in ds:
+        out.update(outcome_counts(outcome_names(ds["outcome"])))
     return out
 
 

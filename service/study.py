@@ -2,8 +2,8 @@
 
 A study file (YAML or JSON) names a cell model, solver settings, the outputs to store and a grid;
 the study is the Cartesian product of the grid's axes. Non-dimensional studies vary the
-parameters of MODEL.md §3; physical studies (MODEL.md §7) give a ``physical:`` block in SI units
-and vary ``frequency_hz`` and any physical field.
+parameters of docs/model.md §3; physical studies (docs/model.md §8) give a ``physical:`` block
+in SI units and vary ``frequency_hz`` and any physical field.
 
 Validation reports every problem it can find in one go, each with its path in the file
 (``grid.gamma_r.num: ...``), as a :class:`StudyError` (a ``ValueError``).
@@ -36,6 +36,7 @@ from pydantic import (
 
 from worker.physical import CELL_FIELDS, PhysicalCell
 from worker.simulate import SOLVER_VERSION, SolverSettings
+from worker.solvers.settings import LCP_SOLVERS, METHODS
 
 __all__ = [
     "DEFAULT_MAX_POINTS",
@@ -200,7 +201,7 @@ def axis_values(axis: Range | list[float] | float) -> np.ndarray:
 class Grid(_Strict):
     """Every axis a study may vary; which ones are allowed depends on the kind of study."""
 
-    # Non-dimensional axes (MODEL.md §3).
+    # Non-dimensional axes (docs/model.md §3).
     gamma_r: Axis | None = None
     gap: Axis | None = None
     g1: Axis | None = None
@@ -209,7 +210,7 @@ class Grid(_Strict):
     sigma: Axis | None = None
     gamma_s: Axis | None = None
     xi: Axis | None = None
-    # Physical axes (MODEL.md §7).
+    # Physical axes (docs/model.md §8).
     frequency_hz: Axis | None = None
     length_m: Axis | None = None
     width_m: Axis | None = None
@@ -255,7 +256,7 @@ class Grid(_Strict):
 
 
 class ModelSpec(_Strict):
-    """The cell model: coupling, number of modes, damping (MODEL.md §3)."""
+    """The cell model: coupling, number of modes, damping (docs/model.md §3)."""
 
     coupling: Literal["paper", "full"] = "paper"
     modes: Integer = Field(5, ge=1, le=30)
@@ -263,16 +264,30 @@ class ModelSpec(_Strict):
     xi_b: Real | None = Field(None, ge=0)
 
 
-class SolverSpec(_Strict):
-    """How every point is integrated and measured (``worker.simulate.SolverSettings``)."""
+# The worker's defaults, so a study's defaults are the solver's (never retyped here).
+_SOLVER = SolverSettings()
 
-    method: Literal["exponential", "euler", "event"] = "exponential"
-    steps_per_period: Integer | None = None
-    coarse_steps: Integer = 64
-    max_periods: Integer = 1000
-    periodicity_tol: Real = 1e-8
-    window: Integer = 20
-    near_margin: Real = 0.1
+
+class SolverSpec(_Strict):
+    """How every point is integrated and how it ends (``worker.simulate.SolverSettings``).
+
+    Every default is the worker's; ``SolverSettings`` validates the values and names the field
+    and its allowed range.
+    """
+
+    method: Literal[METHODS] = _SOLVER.method  # type: ignore[valid-type]
+    steps_per_period: Integer | None = _SOLVER.steps_per_period
+    coarse_steps: Integer = _SOLVER.coarse_steps
+    max_periods: Integer = _SOLVER.max_periods
+    periodicity_tol: Real = _SOLVER.periodicity_tol
+    window: Integer = _SOLVER.window
+    stat_tol_db: Real = _SOLVER.stat_tol_db
+    near_margin: Real = _SOLVER.near_margin
+    adaptive: bool = _SOLVER.adaptive
+    early_stop: bool = _SOLVER.early_stop
+    extrapolate: bool = _SOLVER.extrapolate
+    linear_tail: bool = _SOLVER.linear_tail
+    lcp: Literal[LCP_SOLVERS] = _SOLVER.lcp  # type: ignore[valid-type]
 
     @model_validator(mode="after")
     def _check(self) -> SolverSpec:
@@ -287,10 +302,11 @@ class SolverSpec(_Strict):
 class Outputs(_Strict):
     """Which result groups are stored (failed, reason and wall_s always are).
 
-    transmittance: ``transmittance_db``, ``amplitude``; effective_mass: ``theta_eff``,
-    ``theta_eff_mean``; response: ``response_period``, ``impacts_per_period``, ``converged``,
-    ``periods``, ``steps``; contact (off by default: diagnostics that cost storage, not
-    insight): ``peak_impulse``, ``contact_steps``, ``coarse_steps``, ``steady_period``.
+    transmittance: ``transmittance_db``, ``transmittance_db_se``, ``amplitude``;
+    effective_mass: ``theta_eff``, ``theta_eff_slope``; response: ``outcome``,
+    ``response_period``, ``impacts_per_period``, ``floquet_multiplier``, ``periods``,
+    ``steps``; contact (off by default: diagnostics that cost storage, not insight):
+    ``peak_impulse``, ``contact_steps``, ``coarse_steps``, ``steady_period``.
     """
 
     transmittance: bool = True

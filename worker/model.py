@@ -1,4 +1,4 @@
-"""Model parameters and the assembly of M, C, K, W, X (MODEL.md §2–4).
+"""Model parameters and the assembly of M, C, K, W, X (docs/model.md §2–4).
 
 Pure numpy; nothing here runs inside the time loop.
 """
@@ -37,7 +37,7 @@ def _betas(n: int) -> tuple[float, ...]:
 
 
 def betas(n: int) -> np.ndarray:
-    """First ``n`` clamped–free eigenvalues β_i (MODEL.md §2)."""
+    """First ``n`` clamped–free eigenvalues β_i (docs/model.md §2)."""
     _check_modes(n)
     return np.array(_betas(n))
 
@@ -117,7 +117,7 @@ def _nonnegative(name: str, value: float) -> float:
 
 @dataclass(frozen=True)
 class CellParams:
-    """Non-dimensional parameters of one point (MODEL.md §3).
+    """Non-dimensional parameters of one point (docs/model.md §3).
 
     Parameters
     ----------
@@ -236,7 +236,7 @@ class System:
 
 
 def rayleigh_constants(omegas: np.ndarray, xi_b: float) -> tuple[float, float]:
-    """Rayleigh α_R, β_R fixed at modes 1 and min(5, n) (MODEL.md §4)."""
+    """Rayleigh α_R, β_R fixed at modes 1 and min(5, n) (docs/model.md §4)."""
     if len(omegas) == 1:
         return 2.0 * xi_b * omegas[0], 0.0
     wa, wb = omegas[0], omegas[min(5, len(omegas)) - 1]
@@ -244,7 +244,7 @@ def rayleigh_constants(omegas: np.ndarray, xi_b: float) -> tuple[float, float]:
 
 
 def assemble(p: CellParams) -> System:
-    """Build M, C, K, W, X for ``p`` (MODEL.md §4)."""
+    """Build M, C, K, W, X for ``p`` (docs/model.md §4)."""
     n = p.modes
     b = betas(n)
     d = mode_means(n)
@@ -294,7 +294,7 @@ def assemble(p: CellParams) -> System:
 
 @dataclass(frozen=True)
 class SteadyState:
-    """The impact-free steady state in closed form: ``u(τ) = Re(U e^{iγ_r τ})`` (MODEL.md §8).
+    """The impact-free steady state in closed form: ``u(τ) = Re(U e^{iγ_r τ})`` (docs/model.md §7).
 
     It is the response of the cell without stops (gaps → ∞), and the steady state of any point
     whose tip provably never reaches a stop again.
@@ -356,7 +356,7 @@ def steady_state(sys_: System, forcing: bool = True) -> SteadyState | None:
 
 
 def linear_transmittance_db(p: CellParams) -> float:
-    """Γ of the impact-free system (gaps → ∞), from the complex frequency response (MODEL.md §8)."""
+    """Γ of the impact-free system (gaps → ∞): the closed-form frequency response (model.md §7)."""
     ss = steady_state(assemble(p))
     if ss is None:
         raise ValueError(f"no steady state: undamped resonance at gamma_r = {p.gamma_r}")

@@ -1,4 +1,4 @@
-"""Observables of a point (MODEL.md §6): transmittance and the effective-mass estimators.
+"""Observables of a point (docs/model.md §6): transmittance and the effective-mass estimators.
 
 Why there is no time average of Eq. 36: the instantaneous ratio ``ṡ_b/ṡ`` is singular wherever
 ``ṡ`` crosses zero (twice a period, and at every impact in the paper coupling, where ``ṡ``

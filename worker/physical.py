@@ -1,8 +1,8 @@
 """Physical (SI) description of the unit cell and its mapping to the model's parameters.
 
-The simulator works in the non-dimensional variables of the paper's Eq. 30 (MODEL.md §3).
+The simulator works in the non-dimensional variables of the paper's Eq. 30 (docs/model.md §3).
 Experiments, and anyone reasoning about a real cell, think in metres, kilograms and hertz.
-This module is the one place where that translation happens, following MODEL.md §7:
+This module is the one place where that translation happens, following docs/model.md §8:
 
 - the beam's reference frequency is chosen as the outer mass's, ``ω_b = ω_m``, so ``γ_s = 1``;
 - ``θ = ρAL / m_o``, ``σ = EI / (ρA L⁴ ω_m²)``, ``γ_r = Ω / ω_m`` with ``Ω = 2πf``;
@@ -159,7 +159,7 @@ class PhysicalCell:
     gap_m : float
         Clearance between the beam tip and each stop, >= 0 (0 pins the tip).
     damping_ratio : float, optional
-        ``ξ >= 0``: the outer dashpot is ``c = 2 ξ ω_m m_o`` (and, per MODEL.md §3, the beam's
+        ``ξ >= 0``: the outer dashpot is ``c = 2 ξ ω_m m_o`` (and, per docs/model.md §3, the beam's
         Rayleigh ratio unless the model is given another). Default 0.
     gap1_m, gap2_m : float or None, optional
         Clearances to stop 1 and stop 2 when they differ, >= 0; each defaults to ``gap_m``.
@@ -278,7 +278,7 @@ class PhysicalCell:
         Parameters
         ----------
         damping_ratio : float
-            ``ξ >= 0``. Required: the paper does not report it (MODEL.md §7).
+            ``ξ >= 0``. Required: the paper does not report it (docs/model.md §8).
         base_amplitude_m, base_acceleration_m_s2 : float or None
             The base excitation, exactly one of them. Not defaulted for the same reason.
 
@@ -298,7 +298,7 @@ class PhysicalCell:
             thickness_m=0.0025,
             density_kg_m3=1250.0,
             youngs_modulus_pa=4.583e7,
-            # The paper says the accelerometer "is included in the outer mass"; MODEL.md §7
+            # The paper says the accelerometer "is included in the outer mass"; docs/model.md §8
             # fixes m_o = 12.67 g + 4 g = 16.67 g.
             body_mass_kg=12.67e-3,
             added_mass_kg=4.0e-3,
@@ -500,7 +500,7 @@ class PhysicalCell:
         return {
             "theta": self.theta,
             "sigma": self.sigma,
-            # ω_b = ω_m by the choice of MODEL.md §7, so the beam/mass frequency ratio is 1.
+            # ω_b = ω_m by the choice of docs/model.md §8, so the beam/mass frequency ratio is 1.
             "gamma_s": 1.0,
             "gamma_r": self.hz_to_gamma_r(frequency_hz),
             "xi": self.damping_ratio,

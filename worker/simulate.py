@@ -20,9 +20,14 @@ import numpy as np
 from worker.model import CellParams, assemble
 from worker.solvers.dispatch import KERNELS, RUNS
 from worker.solvers.engine import DIVERGENCE_FACTOR, run_point
+from worker.solvers.event.kernel import EVENT_FIELDS
 from worker.solvers.linear import linear_tail
+from worker.solvers.measure import HISTORY_FIELDS
 from worker.solvers.settings import (
+    DEFAULT_METHOD,
+    LCP_SOLVERS,
     METHODS,
+    OUTCOMES,
     SOLVER_VERSION,
     PointResult,
     SolverSettings,
@@ -30,6 +35,12 @@ from worker.solvers.settings import (
 )
 
 __all__ = [
+    "DEFAULT_METHOD",
+    "EVENT_FIELDS",
+    "HISTORY_FIELDS",
+    "LCP_SOLVERS",
+    "METHODS",
+    "OUTCOMES",
     "POINT_KEYS",
     "SOLVER_VERSION",
     "PointResult",
@@ -89,6 +100,7 @@ def simulate_point(
     """
     settings = settings or SolverSettings()
     history_periods = int_in("history_periods", history_periods, 0, 100_000)
+    RUNS[settings.method].check_options(**options)
     warm_up(settings.method)
     sys_ = assemble(params)
     nx = 2 * sys_.ndof
@@ -97,7 +109,15 @@ def simulate_point(
         x0 = np.asarray(initial_state, dtype=float)
         if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
             raise ValueError(f"initial_state must be {nx} finite numbers, got shape {x0.shape}")
+    RUNS[settings.method].check_point(sys_, settings)
     tail = linear_tail(sys_, forcing)
+    if tail.steady is None and settings.method == "event":
+        # the forced free system is defective (a Jordan block): no eigen-decomposition, and
+        # without impacts no steady state either
+        return PointResult.failure(settings.method, (
+            f"no steady state: undamped resonance (γ_r = {params.gamma_r:g} on a natural "
+            "frequency with no damping); the event solver cannot propagate the secular growth"
+        ))  # fmt: skip
     gaps = max(params.g1, params.g2)
     scale = max(tail.scale, float(np.max(np.abs(x0))), gaps if math.isfinite(gaps) else 0.0)
 
@@ -129,8 +149,8 @@ def simulate_chunk(
 
 def failed_result(settings: SolverSettings, reason: str) -> dict[str, Any]:
     """The record of a point that could not be run."""
-    return PointResult.failure(settings.method, reason,
-                               steps_per_period=settings.steps_per_period or 0).as_dict()  # fmt: skip
+    spp = settings.steps_per_period or 0
+    return PointResult.failure(settings.method, reason, steps_per_period=spp).as_dict()
 
 
 def _kernel(method: str):

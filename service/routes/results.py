@@ -31,6 +31,7 @@ from service.routes.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.schemas import ErrorOut
 from service.store import FILL_FLOAT, StudyStore, encoding, open_results, results_from_records
 from service.study import Study, parse_study
+from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
 
@@ -244,9 +245,12 @@ def timeseries(
     result = {k: jsonable(v) for k, v in r.as_dict().items()}
     if format == "netcdf":
         return _history_netcdf(study_id, coords, hist, result)
-    series = {k: jsonable(v) for k, v in hist.items() if k != "state"}
-    return _json({"study_id": study_id, "coords": coords, "result": result,
-                  "periods": periods, "series": series})  # fmt: skip
+    series = {k: jsonable(v) for k, v in hist.items() if k not in ("state", "events")}
+    body = {"study_id": study_id, "coords": coords, "result": result, "periods": periods,
+            "series": series}  # fmt: skip
+    if "events" in hist:
+        body["events"] = {k: jsonable(v) for k, v in _event_columns(hist["events"]).items()}
+    return _json(body)
 
 
 def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int, dict[str, float]]:
@@ -272,17 +276,31 @@ def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int,
     return flat, coords
 
 
+def _event_columns(events: np.ndarray) -> dict[str, np.ndarray]:
+    """The event log as named columns (``column_<i>`` if its layout is not the known one)."""
+    ev = np.asarray(events, dtype=np.float64).reshape(len(events), -1)
+    names = list(EVENT_FIELDS) if ev.shape[1] == len(EVENT_FIELDS) else None
+    return {(names[i] if names else f"column_{i}"): ev[:, i] for i in range(ev.shape[1])}
+
+
 def _history_netcdf(
     study_id: str, coords: dict[str, float], hist: dict[str, np.ndarray], result: dict[str, Any]
 ) -> Response:
-    units = {"tau": "1", "s": "1", "w_tip": "1", "s_b": "1", "s_dot": "1", "s_b_dot": "1",
-             "theta_eff": "1", "impulse1": "1", "impulse2": "1"}  # fmt: skip
     tau = np.asarray(hist.get("tau", np.zeros(0)))
-    data_vars = {
-        k: ("time", np.asarray(v), {"units": units.get(k, "1"), "long_name": k})
-        for k, v in hist.items()
-        if k not in ("tau", "state")
-    }
+    data_vars: dict[str, Any] = {}
+    enc: dict[str, dict[str, Any]] = {}
+    for k, v in hist.items():
+        if k in ("tau", "state", "events"):
+            continue
+        a = np.asarray(v)
+        data_vars[k] = ("time", a, {"units": "1", "long_name": HISTORY_FIELDS.get(k, k)})
+        integer = a.dtype.kind in "iub"
+        enc[k] = {"zlib": True} if integer else {"_FillValue": FILL_FLOAT, "zlib": True}
+    if "events" in hist:
+        for k, v in _event_columns(hist["events"]).items():
+            name = f"event_{k}"
+            data_vars[name] = ("event", v, {"units": "1", "long_name": EVENT_FIELDS.get(k, k)})
+            enc[name] = {"_FillValue": FILL_FLOAT, "zlib": True}
     ds = xr.Dataset(
         data_vars,
         coords={"time": ("time", tau, {"units": "1", "long_name": "non-dimensional time tau"})},
@@ -292,7 +310,6 @@ def _history_netcdf(
             "result": json.dumps(result),
         },  # fmt: skip
     )
-    enc = {k: {"_FillValue": FILL_FLOAT, "zlib": True} for k in data_vars}
     fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-ts-")
     os.close(fd)
     ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)

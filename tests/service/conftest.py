@@ -44,6 +44,12 @@ def dask_address() -> Iterator[str]:
     """A real 2-process LocalCluster shared by the service tests."""
     from dask.distributed import LocalCluster
 
+    from worker.simulate import warm_up
+
+    # The workers load the kernels from numba's cache instead of both compiling them (the
+    # runner does this for its own clusters; this one is reached by address).
+    warm_up()
+
     cluster = LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
         silence_logs=40,

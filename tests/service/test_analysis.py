@@ -369,8 +369,9 @@ def test_bandgap_map_selection_and_errors() -> None:
 
 @pytest.fixture(scope="module")
 def real(tmp_path_factory: pytest.TempPathFactory) -> xr.Dataset:
-    # Euler at 256 steps a period is unstable for small γ_r (Δτ·ω̃_max > 2): γ_r = 0.2 fails,
-    # so the dataset has real missing points, read back from NetCDF.
+    # Euler at 256 steps a period is unstable for small γ_r (Δτ·ω̃_max > 2): γ_r = 0.2 fails at
+    # gap 0.1, so the dataset has real missing points, read back from NetCDF. (At gap 0.6 the
+    # point is proven impact-free from rest and reported in closed form: no step is taken.)
     study = parse_study(
         {
             "name": "analysis",
@@ -389,7 +390,7 @@ def real(tmp_path_factory: pytest.TempPathFactory) -> xr.Dataset:
 
 
 def test_real_study(real: xr.Dataset) -> None:
-    assert bool(real["failed"].sel(gamma_r=0.2).all())
+    assert bool(real["failed"].sel(gamma_r=0.2, gap=0.1))
     m = bandgap_map(real, "gamma_r", "gap")
     out = bandgap_json(m)
     json.dumps(out, allow_nan=False)
@@ -403,6 +404,13 @@ def test_real_study(real: xr.Dataset) -> None:
     m2 = bandgap_map(real.isel(gamma_r=[0, 2, 3, 4]), "gamma_r", "gap")
     assert int(m2["band_start_edge"].values[0, 0]) == EDGE_KINDS.index("missing")
     assert float(m2["band_start"].values[0, 0]) == 1.5
-    s = slice_json(select(real, "impacts_per_period", {"gap": 0.6, "stop": 2}))
+    s = slice_json(select(real, "impacts_per_period", {"gap": 0.1, "stop": 2}))
     json.dumps(s, allow_nan=False)
     assert s["dims"] == ["gamma_r"] and s["values"][0] is None
+    # The outcome flag as JSON: codes, with what they mean.
+    o = slice_json(select(real, "outcome", {"gap": 0.1}))
+    json.dumps(o, allow_nan=False)
+    assert o["flag_meanings"] == ["linear", "periodic", "irregular", "unsettled", "failed"]
+    assert o["flag_values"] == [0, 1, 2, 3, 4]
+    assert o["flag_meanings"][o["values"][0]] == "failed"
+    assert "flag_meanings" not in s

@@ -25,7 +25,7 @@ from service.client import (
 )
 from service.config import Settings
 from service.runner import run_study
-from service.store import StudyStore, open_results
+from service.store import OUTCOMES, StudyStore, open_results, outcome_names
 from service.study import parse_study
 from tests.service.conftest import SLOW_SOLVER, comparable, tiny_study
 
@@ -258,15 +258,35 @@ def test_run_matches_runner_and_results_routes(make_app: Any, tmp_path: Path) ->
         )
         png = app.client.plot(sid, "transmittance", hue="gap")
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
-        ts = app.client.timeseries(sid, gamma_r=float(ds.gamma_r[3]), gap=0.1, periods=2)
-        assert len(ts["series"]["tau"]) == 2 * 256
+        gr = float(ds.gamma_r[3])
+        ts = app.client.timeseries(sid, gamma_r=gr, gap=0.1, periods=2)
+        tau = np.array(ts["series"]["tau"])
+        # Every grid point of the 2 recorded periods (256 a period), plus the events.
+        assert len(tau) >= 2 * 256 and np.all(np.diff(tau) >= 0)
+        assert 0 <= tau[0] < 2 * np.pi / gr and tau[-1] == pytest.approx(2 * 2 * np.pi / gr)
+        assert {len(v) for v in ts["series"].values()} == {len(tau)}
+        assert {"s", "w_tip", "s_b", "theta_eff", "impulse1", "kind"} <= set(ts["series"])
+        assert ts["result"]["method"] == "event" and "state" not in ts["series"]
+        events = ts["events"]  # the event solver's log, column by column
+        assert set(events) == {"tau", "kind", "stop", "residual", "impulse"}
+        assert set(events["kind"]) <= {1, 2} and set(events["stop"]) <= {1, 2}
         assert ts["result"]["transmittance_db"] == pytest.approx(
             float(ds["transmittance_db"].sel(gap=0.1).isel(gamma_r=3)), abs=1e-9
         )
+        assert ts["result"]["outcome"] == str(outcome_names(ds["outcome"].sel(gap=0.1))[3])
         r = app.http.get(f"/studies/{sid}/timeseries",
-                         params={"gamma_r": float(ds.gamma_r[3]), "gap": 0.1, "format": "netcdf",
+                         params={"gamma_r": gr, "gap": 0.1, "format": "netcdf",
                                  "periods": 1})  # fmt: skip
         assert r.status_code == 200 and r.content[:4] == b"\x89HDF"
+        nc = tmp_path / "ts.nc"
+        nc.write_bytes(r.content)
+        with xr.open_dataset(nc) as h:
+            assert h["kind"].dtype.kind == "i" and h["s"].sizes["time"] == h.sizes["time"] > 256
+            assert h["event_tau"].dims == ("event",) and 0 < h.sizes["event"] <= len(events["tau"])
+            assert json.loads(h.attrs["result"])["outcome"] == ts["result"]["outcome"]
+        counts = {k: int((outcome_names(ds["outcome"]) == k).sum()) for k in OUTCOMES}
+        assert rec["points_irregular"] == counts["irregular"]
+        assert rec["points_unsettled"] == counts["unsettled"]
         files = app.settings.data_dir / "studies" / sid
         assert (files / "results.nc").is_file()
 

@@ -20,9 +20,36 @@ def cat(catalogue_url: str) -> Catalogue:
 def test_add_study_is_idempotent_and_round_trips(cat: Catalogue) -> None:
     rec, created = cat.add_study("ab12cd34ef", "scan", '{"name": "scan"}', 10)
     assert created and rec["status"] == "queued" and rec["definition"] == {"name": "scan"}
+    assert rec["points_irregular"] == rec["points_unsettled"] == 0
     again, created = cat.add_study("ab12cd34ef", "scan", '{"name": "scan"}', 10)
     assert not created and again["submitted_at"] == rec["submitted_at"]
     assert cat.list_studies()[1] == 1
+
+
+def test_catalogue_from_before_the_unsettled_count_is_upgraded(catalogue_url: str) -> None:
+    """A catalogue created before ``points_unsettled`` existed gets the column at startup."""
+    from sqlalchemy import create_engine, inspect, text
+
+    old = Catalogue(catalogue_url)
+    old.add_study("0123abcd45", "old", "{}", 7)
+    old.update_study("0123abcd45", points_irregular=3)
+    old.close()
+    engine = create_engine(catalogue_url)
+    with engine.begin() as conn:  # the table as solver version 1 left it
+        conn.execute(text("ALTER TABLE studies DROP COLUMN points_unsettled"))
+    assert "points_unsettled" not in {c["name"] for c in inspect(engine).get_columns("studies")}
+    engine.dispose()
+
+    cats = [Catalogue(catalogue_url) for _ in range(2)]  # a second start finds it there
+    cat = cats[0]
+    rec = cat.get_study("0123abcd45")
+    assert rec["points_unsettled"] == 0 and rec["points_irregular"] == 3
+    cat.update_study("0123abcd45", points_unsettled=2)
+    assert cats[1].get_study("0123abcd45")["points_unsettled"] == 2
+    new, created = cat.add_study("0123abcd46", "new", "{}", 1)
+    assert created and new["points_unsettled"] == 0
+    for c in cats:
+        c.close()
 
 
 def test_concurrent_submissions_create_one_row(cat: Catalogue) -> None:

@@ -103,7 +103,8 @@ def test_submit_wait_dataset_bandgap_plot_timeseries(server: Server, tmp_path: P
 
         g = float(ds.gamma_r[5])
         ts = c.timeseries(rec["id"], gamma_r=g, gap=0.1, periods=3)
-        assert len(ts["series"]["s"]) == 3 * 256
+        assert len(ts["series"]["s"]) >= 3 * 256  # every grid point, plus the events
+        assert ts["series"]["tau"][-1] == pytest.approx(3 * 2 * np.pi / g)
         assert ts["result"]["transmittance_db"] == pytest.approx(
             float(ds["transmittance_db"].sel(gap=0.1, gamma_r=g)), abs=1e-9
         )

@@ -20,14 +20,17 @@ from service.cli import main
 from service.nightly import (
     DEFAULT_IRREGULAR,
     IrregularCheck,
+    NightlyReport,
     RegressionSpec,
     SuiteError,
     compare,
     load_suite,
     run_suite,
 )
-from service.store import open_results
+from service.store import encoding, open_results, outcome_attrs, outcome_codes, outcome_names
 from service.study import parse_study
+from worker.simulate import SOLVER_VERSION
+from worker.solvers.settings import OUTCOMES
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -124,11 +127,10 @@ def _cli(paths: dict[str, Path], *extra: str) -> int:
 
 
 def _perturb(path: Path) -> dict[str, Any]:
-    """Move one Γ by 0.01 dB and change one response period, at two periodic points."""
+    """Move one Γ by 0.01 dB and change one response period, at two linear/periodic points."""
     ds = open_results(path)
-    rp = ds["response_period"]
-    periodic = np.argwhere(rp.values > 0)
-    (i, j), (k, m) = periodic[0], periodic[1]
+    steady = np.argwhere(np.isin(outcome_names(ds["outcome"]), ("linear", "periodic")))
+    (i, j), (k, m) = steady[0], steady[1]
     old_g = float(ds["transmittance_db"].values[i, j])
     ds["transmittance_db"].values[i, j] = old_g + 0.01
     ds["response_period"].values[k, m] = 2.0
@@ -152,6 +154,11 @@ def test_suite_passes_against_its_own_baselines(suite: dict[str, Path]) -> None:
     assert data["ok"] is True and len(data["studies"]) == 2
     md = (suite["report"] / "report.md").read_text()
     assert "# Nightly regression: PASSED" in md
+    assert "| study | points | linear | periodic | irregular | unsettled | failed | status |" in md
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    counts = tiny.counts["new"]
+    assert counts["points"] == tiny.points == sum(counts[k] for k in OUTCOMES)
+    assert f"| tiny | {tiny.points} | {counts['linear']} | {counts['periodic']} |" in md
     # Fresh results every run (never reused from an earlier run of the same study id).
     assert all("/nightly/" in s.results for s in report.studies)
 
@@ -159,8 +166,10 @@ def test_suite_passes_against_its_own_baselines(suite: dict[str, Path]) -> None:
 def test_baseline_files_are_small_and_record_provenance(made: Path) -> None:
     with xr.open_dataset(made / "baselines" / "tiny.nc") as ds:
         assert set(ds.data_vars) == {
-            "transmittance_db", "theta_eff", "response_period", "failed",
+            "transmittance_db", "theta_eff", "outcome", "response_period", "failed",
         }  # fmt: skip
+        assert ds["outcome"].attrs["flag_meanings"] == "linear periodic irregular unsettled failed"
+        assert ds.attrs["solver_version"] == SOLVER_VERSION
         for key in (
             "impactcell_version", "git_commit", "solver_version", "solver_settings", "study",
             "study_id", "baseline_created",
@@ -250,6 +259,38 @@ def test_changed_definition_needs_an_update(suite: dict[str, Path]) -> None:
     assert "solver.max_periods" in (tiny.error or "")
 
 
+def _make_old(path: Path) -> None:
+    """Rewrite a baseline as solver version 1 wrote it: no ``outcome``, version "1"."""
+    ds = open_results(path).drop_vars("outcome")
+    ds.attrs["solver_version"] = "1"
+    ds.to_netcdf(path, engine="netcdf4", encoding=encoding(ds))
+
+
+def test_baseline_of_an_older_solver_says_to_recut_it(
+    suite: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    _make_old(suite["baselines"] / "tiny.nc")
+    report = _run(suite)
+    assert not report.ok
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    assert tiny.status == "error" and not tiny.regressions
+    assert "predates solver version " + SOLVER_VERSION in (tiny.error or "")
+    assert "solver version 1" in (tiny.error or "")
+    assert "impactcell nightly --update-baseline" in (tiny.error or "")
+    assert {s.study: s.status for s in report.studies}["tiny-euler"] == "passed"
+    # The old baseline's outcome is read from response_period: the counts are still there.
+    assert tiny.counts["baseline"]["points"] == tiny.points
+    md = (suite["report"] / "report.md").read_text()
+    assert "predates solver version" in md and "--update-baseline" in md
+    assert _cli(suite) == 1
+    assert "predates solver version" in capsys.readouterr().out
+    # Re-cut deliberately: written, and then it passes.
+    assert _cli(suite, "--update-baseline") == 0
+    with xr.open_dataset(suite["baselines"] / "tiny.nc") as ds:
+        assert "outcome" in ds and ds.attrs["solver_version"] == SOLVER_VERSION
+    assert _cli(suite) == 0
+
+
 def test_url_mode_runs_fresh_through_a_real_service(
     suite: dict[str, Path], dask_address: str
 ) -> None:
@@ -288,6 +329,11 @@ def test_url_mode_runs_fresh_through_a_real_service(
             "regression.tolerances.transmittance_db.absolute: unknown key",
         ),
         ("  tolerances:\n    gamma: {abs: 1.0e-3}\n", "unknown variable 'gamma'"),
+        (
+            "  tolerances:\n    theta_eff_mean: {abs: 1.0e-3}\n",
+            "unknown variable 'theta_eff_mean' (replaced by theta_eff_slope in solver version 2)",
+        ),
+        ("  tolerances:\n    outcome: {exact: true}\n", "unknown variable 'outcome'"),
         (
             "  tolerances:\n    response_period: {exact: true, abs: 1}\n",
             "regression.tolerances.response_period: give exact: true or abs/rel, not both",
@@ -355,15 +401,27 @@ def test_regression_block_does_not_change_the_study_id(tmp_path: Path) -> None:
 
 
 def _synthetic(
-    gamma: np.ndarray, period: np.ndarray, failed: np.ndarray | None = None, **attrs: Any
+    gamma: np.ndarray,
+    period: np.ndarray,
+    failed: np.ndarray | None = None,
+    outcome: list[str] | None = None,
+    **attrs: Any,
 ) -> xr.Dataset:
+    """A results-like dataset; the outcome defaults to failed / periodic (period > 0) /
+    irregular (period 0)."""
     n = gamma.size
     failed = np.zeros(n, dtype=bool) if failed is None else failed
+    if outcome is None:
+        outcome = [
+            "failed" if f else ("periodic" if p > 0 else "irregular")
+            for f, p in zip(failed, period, strict=True)
+        ]
     g = np.where(failed, np.nan, gamma)
     rp = np.where(failed, np.nan, period).astype(float)
     return xr.Dataset(
         {
             "transmittance_db": ("gamma_r", g),
+            "outcome": ("gamma_r", outcome_codes(outcome), outcome_attrs()),
             "response_period": ("gamma_r", rp),
             "failed": ("gamma_r", failed),
         },
@@ -407,24 +465,42 @@ def test_irregular_check_skips_too_few_points() -> None:
     assert all(d.skipped and d.value is None for d in out.distribution)
 
 
-def test_periodic_points_failures_and_switches() -> None:
-    g = np.array([-10.0, -11.0, -12.0, -13.0, -14.0])
-    rp = np.array([1, 1, 2, 1, 1])
-    old = _synthetic(g, rp, failed=np.array([0, 0, 0, 0, 1], dtype=bool))
+def test_outcome_class_changes_are_regressions() -> None:
+    g = np.array([-10.0, -11.0, -12.0, -13.0, -14.0, -15.0, -16.0, -17.0])
+    rp = np.array([1, 1, 2, 1, 1, 1, 0, 0])
+    old = _synthetic(
+        g, rp, failed=np.array([0, 0, 0, 0, 1, 0, 0, 0], dtype=bool),
+        outcome=["periodic", "periodic", "periodic", "periodic", "failed", "linear", "irregular",
+                 "unsettled"],
+    )  # fmt: skip
     new = _synthetic(
-        g + [0.0005, 0, 0, 0, 0],  # within 1e-3 dB
-        np.array([1, 0, 2, 1, 3]),  # point 1 becomes irregular; point 4 recovers
-        failed=np.array([0, 0, 0, 1, 0], dtype=bool),  # point 3 fails now
-    )
-    new["reason"] = ("gamma_r", np.array(["", "", "", "euler scheme is unstable", ""], object))
+        g + [0.0005, 3, 0, 0, 0, 0, 0, 5],  # within 1e-3 dB; the rest are not compared
+        np.array([1, 0, 2, 1, 3, 1, 0, 0]),
+        failed=np.array([0, 0, 0, 1, 0, 0, 0, 0], dtype=bool),
+        outcome=["linear", "irregular", "periodic", "failed", "periodic", "periodic",
+                 "unsettled", "unsettled"],
+    )  # fmt: skip
+    new["reason"] = ("gamma_r", np.array(["", "", "", "euler scheme is unstable", "", "",
+                                          "the budget ran out", ""], object))  # fmt: skip
     out = compare(new, old, study="synthetic")
-    kinds = {c.kind: c for c in out.changes}
-    assert set(kinds) == {"switch", "new-failure", "recovered"}
-    assert kinds["switch"].old == 1 and kinds["switch"].new == 0
-    assert kinds["switch"].coords["gamma_r"] == pytest.approx(4.25)
-    assert kinds["new-failure"].note == "euler scheme is unstable"
-    assert not kinds["recovered"].regression
-    assert out.status == "failed" and len(out.regressions) == 2
+    # Linear <-> periodic is one class (compared pointwise): points 0 and 5 did not move.
+    moved = {round(c.coords["gamma_r"], 6): c for c in out.changes}
+    step = 1.0 / 7
+    assert sorted(moved) == [round(4.0 + k * step, 6) for k in (1, 3, 4, 6)]
+    assert all(c.kind == "outcome" and c.variable == "outcome" for c in out.changes)
+    assert all(c.regression for c in out.changes)
+    pairs = [(c.old, c.new) for c in out.changes]
+    assert pairs == [
+        ("periodic", "irregular"), ("periodic", "failed"), ("failed", "periodic"),
+        ("irregular", "unsettled"),
+    ]  # fmt: skip
+    assert out.changes[1].note == "euler scheme is unstable"
+    assert out.changes[3].note == "the budget ran out"
+    assert out.status == "failed" and len(out.regressions) == 4
+    assert any("1 points unsettled in both runs" in n for n in out.notes)
+    md = NightlyReport([out], "s", "b", "embedded", False, "now").to_markdown()
+    assert "| synthetic | gamma_r=4.1428571 | outcome | outcome | periodic | irregular | - |" in md
+
     # Missing values: missing == missing, missing vs value is a change.
     g2 = g.copy()
     spec = RegressionSpec.model_validate({"tolerances": {"transmittance_db": {"abs": 1e-3}}})
@@ -433,8 +509,25 @@ def test_periodic_points_failures_and_switches() -> None:
     b["transmittance_db"].values[0] = np.nan
     assert compare(b, a, spec).status == "passed"
     b["transmittance_db"].values[0] = -10.0
-    moved = compare(b, a, spec).regressions
-    assert len(moved) == 1 and moved[0].old is None and moved[0].new == -10.0
+    moved_pts = compare(b, a, spec).regressions
+    assert len(moved_pts) == 1 and moved_pts[0].old is None and moved_pts[0].new == -10.0
+
+
+def test_an_old_baseline_is_read_not_crashed_on() -> None:
+    g = np.array([-10.0, -11.0, -12.0])
+    rp = np.array([1, 0, 1])
+    new = _synthetic(g, rp, solver_version=SOLVER_VERSION)
+    old = _synthetic(g + [0.0, 0.0, 0.5], rp, solver_version="1").drop_vars("outcome")
+    out = compare(new, old, study="old")
+    assert out.status == "error" and "predates solver version" in (out.error or "")
+    assert "--update-baseline" in (out.error or "")
+    # What differs is listed for information only (period 0 read as irregular: same class).
+    assert [(c.kind, c.variable) for c in out.changes] == [("moved", "transmittance_db")]
+    assert not out.regressions and not out.distribution
+    assert out.counts["baseline"]["irregular"] == 1 and out.counts["baseline"]["periodic"] == 2
+    # Same version on both sides but no outcome in the baseline: still not comparable.
+    out = compare(new, old.assign_attrs(solver_version=SOLVER_VERSION))
+    assert out.status == "error" and "has no outcome variable" in (out.error or "")
 
 
 def test_relative_tolerance() -> None:
@@ -474,7 +567,8 @@ def test_shipped_suite_covers_what_it_claims() -> None:
     entries = load_suite(ROOT / "studies" / "nightly")
     studies = [e.study for e in entries]
     assert {s.model.coupling for s in studies} == {"paper", "full"}
-    assert {s.solver.method for s in studies} == {"exponential", "euler"}
+    # Both time-stepping solvers set explicitly; table1 runs on the default (event).
+    assert {s.solver.method for s in studies} == {"event", "exponential", "euler"}
     assert any(s.is_physical for s in studies)
     axes = [s.axes() for s in studies]
     assert any("g1" in a and set(a["g1"]) != set(a["g2"]) for a in axes)  # asymmetric gaps
@@ -486,6 +580,10 @@ def test_shipped_suite_covers_what_it_claims() -> None:
         path = ROOT / "studies" / "baselines" / f"{e.stem}.nc"
         assert path.is_file(), path
         with xr.open_dataset(path) as ds:
+            assert ds.attrs["solver_version"] == SOLVER_VERSION, (
+                f"{path.name} predates solver version {SOLVER_VERSION}: re-cut the baselines "
+                "with `impactcell nightly --update-baseline`"
+            )
             assert json.loads(ds.attrs["study"]) == e.study.canonical()
 
 

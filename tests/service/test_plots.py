@@ -46,7 +46,7 @@ def _synthetic() -> xr.Dataset:
         {
             "transmittance_db": (dims, gamma, {"units": "dB"}),
             "theta_eff": (dims, teff, {"units": "1"}),
-            "theta_eff_mean": (dims, 0.8 * teff, {"units": "1"}),
+            "theta_eff_slope": (dims, 0.8 * teff, {"units": "1"}),
         },
         coords={
             "gap": ("gap", gap, {"units": "1"}),
@@ -106,9 +106,18 @@ def test_bandgap_png_2d_and_1d() -> None:
 
 def test_effective_mass_png() -> None:
     ds = _synthetic()
-    _check_png(effective_mass_png(ds, {"theta": 0.3, "gap": 0.1}, x="gamma_r"))
-    # Without the time average, and with a huge resonance peak (symlog axis).
-    big = ds.drop_vars("theta_eff_mean")
+    both = effective_mass_png(ds, {"theta": 0.3, "gap": 0.1}, x="gamma_r")
+    _check_png(both)
+    # Without the phase-portrait slope (a second line and legend entry fewer), and with a huge
+    # resonance peak (symlog axis).
+    one = effective_mass_png(ds.drop_vars("theta_eff_slope"), {"theta": 0.3, "gap": 0.1})
+    _check_png(one)
+    assert one != both
+    # A slope missing everywhere (no phase portrait): drawn without it, as if absent.
+    none = ds.copy(deep=True)
+    none["theta_eff_slope"][:] = np.nan
+    assert effective_mass_png(none, {"theta": 0.3, "gap": 0.1}) == one
+    big = ds.drop_vars("theta_eff_slope").copy(deep=True)
     big["theta_eff"][..., 8] = 1e7
     _check_png(effective_mass_png(big, {"theta": 0.3, "gap": 0.1}))
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -23,10 +24,13 @@ from typing import Any
 import pytest
 import xarray as xr
 
+from service import runner
 from service.cli import main
-from service.runner import run_study
-from service.store import StudyStore, open_results
+from service.runner import make_client, run_study
+from service.store import StudyStore, open_results, outcome_names
 from service.study import load_study, parse_study
+from worker.simulate import simulate_chunk
+from worker.solvers.settings import OUTCOMES
 
 ROOT = Path(__file__).resolve().parents[2]
 SOLVER = {"steps_per_period": 512, "max_periods": 200, "periodicity_tol": 1e-6, "window": 10}
@@ -115,8 +119,6 @@ def test_resume_computes_only_missing(tmp_path: Path, client: Any) -> None:
     study = _study("resume")
     store = StudyStore(tmp_path, study)
     store.prepare()
-    from worker.simulate import simulate_chunk
-
     solver = study.solver.settings().__dict__
     for a, b in [(0, 7), (20, 30)]:
         store.write_chunk(a, b, simulate_chunk(study.points(a, b), solver))
@@ -132,10 +134,98 @@ def test_resume_computes_only_missing(tmp_path: Path, client: Any) -> None:
 
 def test_quick_study_runs(tmp_path: Path, client: Any) -> None:
     study = load_study(ROOT / "studies" / "quick.yaml")
+    assert study.solver.method == "event"  # the worker's default, not set in the file
     s = run_study(study, tmp_path, client=client)
     assert s.points == study.size and s.failed == 0
     ds = open_results(s.path)
     assert ds["transmittance_db"].notnull().all()
+    assert sum(s.outcomes.values()) == study.size
+
+
+def test_summary_counts_outcomes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # A short budget: some points end irregular, some run out of periods (unsettled).
+    study = parse_study(
+        {
+            "name": "outcomes",
+            "solver": {"steps_per_period": 256, "max_periods": 60, "window": 5},
+            "grid": {"gamma_r": [0.5, 1.0, 2.3, 3.2], "gap": [0.1, 0.5], "theta": 0.3,
+                     "sigma": 0.05, "gamma_s": 1.0},
+        }
+    )  # fmt: skip
+    truth = [r["outcome"] for r in simulate_chunk(study.points(0, study.size),
+                                                   study.solver.settings().__dict__)]  # fmt: skip
+    want = {k: truth.count(k) for k in OUTCOMES}
+    assert want["irregular"] and want["unsettled"], truth  # the grid covers both
+    s = run_study(study, tmp_path, serial=True)
+    assert s.outcomes == want
+    assert (s.irregular, s.unsettled, s.failed) == (
+        want["irregular"], want["unsettled"], want["failed"],
+    )  # fmt: skip
+    # Unsettled points have period 0 too, but they are not irregular.
+    ds = open_results(s.path)
+    period0 = int((ds["response_period"] == 0).sum())
+    assert period0 == want["irregular"] + want["unsettled"] > s.irregular
+    assert list(outcome_names(ds["outcome"]).ravel()) == truth
+    # A reused results file counts the same, from the dataset.
+    again = run_study(study, tmp_path, serial=True)
+    assert again.reused and again.outcomes == want and again.unsettled == want["unsettled"]
+    # The command line reports both counts.
+    assert main(["run", str(_study_file(tmp_path, study)), "--out", str(tmp_path), "--json",
+                 "--serial", "--no-progress"]) == 0  # fmt: skip
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["irregular"] == want["irregular"]
+    assert summary["unsettled"] == want["unsettled"]
+    assert main(["show", str(s.path)]) == 0
+    out = capsys.readouterr().out
+    assert f"irregular {want['irregular']:,}" in out and f"unsettled {want['unsettled']:,}" in out
+
+
+def _study_file(folder: Path, study: Any) -> Path:
+    path = folder / "study.json"
+    path.write_text(study.canonical_json())
+    return path
+
+
+def test_embedded_cluster_starts_after_the_parent_warmed_up(monkeypatch) -> None:
+    """The parent compiles (or loads) the kernels first, so its workers only load the cache."""
+    import dask.distributed
+
+    calls: list[str] = []
+    monkeypatch.setattr(runner.simulate, "warm_up", lambda m=None: calls.append(f"warm {m}"))
+
+    class FakeCluster:
+        def __init__(self, **kw: Any) -> None:
+            calls.append(f"cluster {kw['n_workers']}")
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", FakeCluster)
+    monkeypatch.setattr(dask.distributed, "Client", lambda cluster, **kw: ("client", cluster))
+    monkeypatch.delenv("IMPACTCELL_SCHEDULER", raising=False)
+    make_client(None, 2, method="euler")
+    make_client(None, 1)
+    assert calls == ["warm euler", "cluster 2", "warm event", "cluster 1"]
+    # A scheduler elsewhere: its workers do not share this machine's cache; nothing to warm.
+    calls.clear()
+    monkeypatch.setattr(dask.distributed, "Client", lambda address, **kw: ("client", address))
+    make_client("tcp://127.0.0.1:1", None)
+    assert calls == []
+
+
+def test_workers_get_one_blas_thread() -> None:
+    import dask
+
+    runner._worker_environ()
+    env = dask.config.get("distributed.nanny.pre-spawn-environ")
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        assert int(env[var]) == 1, var
+
+
+def test_worker_warm_up_uses_the_default_method(client: Any) -> None:
+    import inspect
+
+    assert inspect.signature(runner.warm_up).parameters["method"].default == "event"
+    runner.warm_up(client)  # compiles or loads in every worker; returns once all are done
+    cached = client.run(lambda: __import__("worker.simulate").simulate._warm.copy())
+    assert all("event" in methods for methods in cached.values())
 
 
 def _chunk_files(folder: Path) -> list[Path]:
@@ -194,7 +284,9 @@ def test_cli_show_and_bad_study(tmp_path: Path, capsys: pytest.CaptureFixture[st
     s = run_study(study, tmp_path, serial=True)
     assert main(["show", str(s.path)]) == 0
     out = capsys.readouterr().out
-    assert study.id in out and "transmittance_db" in out
+    assert study.id in out and "transmittance_db" in out and "outcome" in out
+    assert re.search(r"points\s+48  failed 0  linear \d+  periodic \d+  irregular \d+  "
+                     r"unsettled \d+", out)  # fmt: skip
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: bad\nnope: 1\ngrid: {gamma_r: -1}\n")
     assert main(["run", str(bad), "--out", str(tmp_path)]) == 2

@@ -12,13 +12,17 @@ import xarray as xr
 
 from service.store import (
     FILL_FLOAT,
+    PENDING,
     StudyStore,
     atomic_write,
     open_results,
+    outcome_names,
     results_from_records,
+    summarize,
 )
 from service.study import parse_study
 from worker.simulate import simulate_chunk
+from worker.solvers.settings import OUTCOMES
 
 SOLVER = {"steps_per_period": 256, "max_periods": 60, "window": 5}
 
@@ -76,6 +80,86 @@ def test_netcdf_round_trip_with_failed_point(tmp_path: Path) -> None:
         assert nc["failed"][:].ravel()[1] == 1
 
 
+def test_outcome_flag_round_trips_with_its_cf_attributes(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _with_failure(_records(study))
+    names = [r["outcome"] for r in records]
+    # The grid covers a steady point, an irregular one and a failed one (else the test is moot).
+    assert {"periodic", "irregular", "failed"} <= set(names), names
+    _fill(store, records, 4)
+    path = store.write_results(results_from_records(study, store.collect()))
+
+    back = open_results(path)
+    out = back["outcome"]
+    assert out.dtype == np.int8 and out.dims == ("gap", "gamma_r")
+    assert out.attrs["flag_meanings"] == " ".join(OUTCOMES)
+    assert OUTCOMES == ("linear", "periodic", "irregular", "unsettled", "failed")
+    np.testing.assert_array_equal(out.attrs["flag_values"], np.arange(5, dtype=np.int8))
+    assert {"units", "long_name"} <= set(out.attrs)
+    flat = back.stack(p=list(study.dims()))
+    assert list(outcome_names(flat["outcome"])) == names
+    # ``failed`` and the outcome agree; irregular counts as such, not as "period 0 and fine".
+    np.testing.assert_array_equal(flat["failed"].values, np.array(names) == "failed")
+    counts = summarize(back)
+    assert counts["irregular"] == names.count("irregular") and counts["failed"] == 1
+    assert sum(counts[k] for k in OUTCOMES) == study.size
+
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        v = nc["outcome"]
+        assert v.dtype == np.int8 and "_FillValue" not in v.ncattrs()  # never missing
+        assert v.getncattr("flag_meanings") == "linear periodic irregular unsettled failed"
+        np.testing.assert_array_equal(v.getncattr("flag_values"), [0, 1, 2, 3, 4])
+        np.testing.assert_array_equal(v[:].ravel(), [OUTCOMES.index(n) for n in names])
+
+
+def test_standard_error_is_a_fill_value_where_it_does_not_apply(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _with_failure(_records(study))
+    se = [r["transmittance_db_se"] for r in records]
+    assert any(x is None for x in se) and any(x is not None for x in se), se
+    for r in records:  # the worker's contract: a standard error only where Γ is a mean
+        assert (r["transmittance_db_se"] is not None) == (r["outcome"] in ("irregular",
+                                                                         "unsettled"))  # fmt: skip
+    _fill(store, records, 4)
+    path = store.write_results(results_from_records(study, store.collect()))
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        for var in ("transmittance_db_se", "floquet_multiplier", "theta_eff_slope"):
+            disk = nc[var][:].ravel()
+            assert not np.isnan(disk).any(), var  # fill values on disk, never NaN
+            want = [r[var] for r in records]
+            for got, w in zip(disk, want, strict=True):
+                assert got == FILL_FLOAT if w is None else got == pytest.approx(w, rel=1e-15)
+        assert nc["transmittance_db_se"].units == "dB"
+    flat = open_results(path).stack(p=list(study.dims()))
+    np.testing.assert_array_equal(np.isnan(flat["transmittance_db_se"].values),
+                                  [x is None for x in se])  # fmt: skip
+
+
+def test_unknown_outcome_is_refused_and_pending_points_read_as_failed(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _records(study)
+    bad = [dict(r) for r in records[:2]]
+    bad[1]["outcome"] = "chaotic"
+    with pytest.raises(ValueError, match="outcome must be one of linear, .*got 'chaotic'"):
+        store.write_chunk(0, 2, bad)
+    store.write_chunk(0, 2, records[:2])
+    cols, filled = store.collect_partial()
+    ds = results_from_records(study, cols, computed=filled)
+    flat = ds.stack(p=list(study.dims()))
+    names = outcome_names(flat["outcome"])
+    assert list(names[:2]) == [r["outcome"] for r in records[:2]]
+    assert set(names[2:]) == {"failed"} and set(flat["reason"].values[2:]) == {PENDING}
+    assert flat["pending"].values[2:].all() and not flat["pending"].values[:2].any()
+
+
 def test_cf_attributes_and_provenance(tmp_path: Path) -> None:
     study = _study()
     ds = results_from_records(study, _collect(tmp_path, study))
@@ -118,8 +202,10 @@ def test_outputs_select_variables(tmp_path: Path) -> None:
         }
     )
     ds = results_from_records(study, _collect(tmp_path, study))
-    assert "theta_eff" not in ds and "peak_impulse" in ds and "transmittance_db" in ds
+    assert "theta_eff" not in ds and "theta_eff_slope" not in ds
+    assert {"peak_impulse", "transmittance_db", "transmittance_db_se", "outcome"} <= set(ds)
     assert {"failed", "reason", "wall_s"} <= set(ds.data_vars)
+    assert not {"converged", "theta_eff_mean"} & set(ds.data_vars)  # solver version 1 only
 
 
 def test_missing_ranges_and_bad_chunks(tmp_path: Path) -> None:

@@ -182,7 +182,7 @@ def test_id_is_canonical() -> None:
     b = copy.deepcopy(a)
     b["grid"] = dict(reversed(list(b["grid"].items())))
     b["model"] = {"coupling": "paper", "modes": 5}  # explicit defaults
-    b["solver"] = {"method": "exponential"}
+    b["solver"] = {"method": "event", "periodicity_tol": 1e-9, "lcp": "closed"}
     assert parse_study(a).id == parse_study(b).id
     c = copy.deepcopy(a)
     c["grid"]["gamma_r"] = [0.5, 1.1]
@@ -190,6 +190,45 @@ def test_id_is_canonical() -> None:
     d = copy.deepcopy(a)
     d["solver"] = {"max_periods": 500}
     assert parse_study(d).id != parse_study(a).id
+
+
+def test_solver_defaults_are_the_workers() -> None:
+    from dataclasses import asdict
+
+    from worker.simulate import SolverSettings
+
+    s = parse_study(_base())
+    worker = asdict(SolverSettings())
+    assert s.solver.method == worker["method"] == "event"
+    assert s.solver.periodicity_tol == worker["periodicity_tol"]
+    # Every setting a study may give defaults to the worker's value, and reaches the worker.
+    assert {k: worker[k] for k in s.solver.model_dump()} == s.solver.model_dump()
+    assert asdict(s.solver.settings()) == worker
+    canon = s.canonical()["solver"]
+    assert {"stat_tol_db", "extrapolate", "early_stop", "lcp"} <= set(canon)
+
+
+def test_new_solver_settings_are_settable_and_validated() -> None:
+    d = _base()
+    d["solver"] = {"stat_tol_db": 0.05, "extrapolate": False, "early_stop": False,
+                   "lcp": "lemke", "method": "euler"}  # fmt: skip
+    got = parse_study(d).solver.settings()
+    assert (got.stat_tol_db, got.extrapolate, got.early_stop, got.lcp) == (
+        0.05, False, False, "lemke",
+    )  # fmt: skip
+    assert parse_study(d).id != parse_study(_base()).id
+    for solver, path, text in [
+        ({"stat_tol_db": -1}, "solver", "stat_tol_db must be in (0, 100), got -1"),
+        ({"lcp": "pivot"}, "solver.lcp", "'closed' or 'lemke'"),
+        ({"early_stop": "sometimes"}, "solver.early_stop", "boolean"),
+        ({"method": "rk4"}, "solver.method", "'event', 'exponential' or 'euler'"),
+    ]:
+        bad = _base()
+        bad["solver"] = solver
+        with pytest.raises(StudyError) as info:
+            parse_study(bad)
+        assert path in _paths(info.value), info.value.problems
+        assert text in str(info.value)
 
 
 # --------------------------------------------------------------------------- properties

@@ -1,4 +1,4 @@
-"""Modal data, assembly and parameter validation (MODEL.md §2–4)."""
+"""Modal data, assembly and parameter validation (docs/model.md §2–4)."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Tests for worker.physical: SI inputs → the model's non-dimensional parameters (MODEL.md §7)."""
+"""worker.physical: SI inputs → the model's non-dimensional parameters (docs/model.md §8)."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def table1() -> PhysicalCell:
 
 
 # --------------------------------------------------------------------------------------
-# Table 1 numbers (MODEL.md §7)
+# Table 1 numbers (docs/model.md §8)
 
 
 def test_table1_inputs(table1: PhysicalCell) -> None:
@@ -81,7 +81,7 @@ def test_table1_beam_modes_to_printed_digits(table1: PhysicalCell) -> None:
 
 
 def test_table1_modes_consistent_with_sigma(table1: PhysicalCell) -> None:
-    # MODEL.md §3: ω̃_i = β_i² √σ in units of ω_b = ω_m.
+    # docs/model.md §2: ω̃_i = β_i² √σ in units of ω_b = ω_m.
     betas = cantilever_betas(5)
     expected = betas**2 * math.sqrt(table1.sigma) * table1.f_m_hz
     np.testing.assert_allclose(table1.beam_mode_frequencies_hz(5), expected, rtol=1e-12)

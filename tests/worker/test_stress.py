@@ -7,14 +7,10 @@ import time
 import pytest
 
 from worker.model import CellParams, assemble, linear_transmittance_db, pinned_transmittance_db
-from worker.simulate import (
-    MAX_STEPS_PER_PERIOD,
-    SolverSettings,
-    _euler_check,
-    euler_default_steps,
-    simulate_chunk,
-    simulate_point,
-)
+from worker.simulate import SolverSettings, simulate_chunk, simulate_point
+from worker.solvers.euler import check_stable
+from worker.solvers.euler import default_steps as euler_default_steps
+from worker.solvers.settings import MAX_STEPS_PER_PERIOD
 
 BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, gamma_r=0.85)
 METHODS = ("exponential", "event", "euler")
@@ -33,7 +29,8 @@ def assert_clean(rec: dict) -> None:
     else:
         for k in ("transmittance_db", "amplitude", "theta_eff"):
             assert isinstance(rec[k], float) and math.isfinite(rec[k]), k
-        assert rec["periods"] <= 1000
+        assert rec["periods"] <= 2000  # the budget plus the side runs that confirm an orbit
+        assert rec["outcome"] in ("linear", "periodic", "irregular", "unsettled")
 
 
 EXTREMES = {
@@ -83,7 +80,7 @@ def test_extreme_points_match_the_closed_forms(method):
     pts = [{**BASE, **kw} for kw, _, _ in cases]
     for (kw, ref, tol), rec in zip(cases, simulate_chunk(pts, {"method": method}), strict=True):
         assert_clean(rec)
-        assert rec["converged"] and rec["response_period"] == 1, kw
+        assert rec["outcome"] in ("linear", "periodic") and rec["response_period"] == 1, kw
         expected = ref(CellParams(**{**BASE, **kw}))
         assert rec["transmittance_db"] == pytest.approx(expected, abs=tol[method]), kw
 
@@ -108,7 +105,7 @@ def test_paper_coupling_at_theta_1e3_diverges_and_every_method_says_so_quickly()
         rec = simulate_chunk([pt], {"method": method})[0]
         assert time.perf_counter() - t0 < 10.0
         assert_clean(rec)
-        assert rec["failed"] and ("finite" in rec["reason"] or "diverged" in rec["reason"])
+        assert rec["failed"] and "diverged" in rec["reason"]
     # the consistent coupling at the same θ is bounded
     rec = simulate_chunk([{**pt, "coupling": "full"}], {"method": "event"})[0]
     assert_clean(rec)
@@ -133,11 +130,11 @@ def test_euler_default_steps_are_never_refused(kw):
     # Explicit damping of stiff modes used to make the default (Δτ·ω̃_max = 1) unstable.
     sys_ = assemble(CellParams(**{**BASE, **kw}))
     n = euler_default_steps(sys_)
-    _euler_check(sys_, 2 * math.pi / sys_.params.gamma_r / n)
+    check_stable(sys_, 2 * math.pi / sys_.params.gamma_r / n)
 
 
 def test_euler_default_beyond_the_step_limit_is_refused_not_run():
-    pt = {**BASE, "modes": 30, "sigma": 10.0, "gamma_r": 0.01}
+    pt = {**BASE, "modes": 30, "sigma": 10.0, "gamma_r": 0.01, "g1": 0.0, "g2": 0.0}
     assert euler_default_steps(assemble(CellParams(**pt))) > MAX_STEPS_PER_PERIOD
     t0 = time.perf_counter()
     rec = simulate_chunk([pt], {"method": "euler"})[0]
@@ -148,9 +145,10 @@ def test_euler_default_beyond_the_step_limit_is_refused_not_run():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_period_budget_ends_a_long_run(method):
-    # γ_r 5 is irregular: the run goes to the budget and is measured on the window.
+    # γ_r 5 is irregular: a 60-period budget is too short for its statistics
     rec = simulate_chunk(
-        [{**BASE, "gamma_r": 5.0}], {"method": method, "max_periods": 150, "window": 10}
+        [{**BASE, "gamma_r": 5.0}], {"method": method, "max_periods": 60, "window": 10}
     )[0]
     assert_clean(rec)
-    assert rec["periods"] == 150 and not rec["converged"] and rec["reason"] == "irregular"
+    assert rec["outcome"] == "unsettled" and rec["response_period"] == 0
+    assert rec["periods"] >= 60 and "budget of 60 periods ran out" in rec["reason"]

@@ -52,6 +52,17 @@ class KernelRun:
         self.tol = settings.periodicity_tol
         self.spp = 0
 
+    @classmethod
+    def check_options(cls, **options: object) -> None:
+        """Validate method options before anything runs (the base method takes none)."""
+        if options:
+            raise ValueError(f"method {cls.name} takes no option {', '.join(sorted(options))}")
+
+    @classmethod
+    def check_point(cls, sys_: System, settings: SolverSettings) -> None:
+        """Refuse settings this method cannot run for this point (before anything runs, so a
+        refusal does not depend on whether the point needs simulating at all)."""
+
     # ------------------------------------------------------------------ state
 
     def reset(self, x0: np.ndarray) -> None:

@@ -54,7 +54,9 @@ RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
 MAX_CYCLES = 4  # extrapolate-and-confirm cycles per candidate
 MAX_FIT = 1e-2  # a first extrapolation must fit the sequence to this relative residual
 MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
-MEASURE_AFTER_WINDOWS = 2  # harmonics are accumulated from this window on (and on every orbit)
+# The main trajectory accumulates harmonics (for an irregular response's θ_eff) only over the
+# windows its statistics can use: the last MIN_WINDOWS before the earliest irregular claim on.
+# Orbits are always measured (their own side run).
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 
 
@@ -227,10 +229,10 @@ class _Engine:
         self.period = 0  # periods of the main trajectory
         self.work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
         self.checks = (
-            (ms.CHECK_LINEAR if run.lin_gate > 0.0 else 0)
+            (ms.CHECK_LINEAR if run.lin_gate > 0.0 and settings.linear_tail else 0)
             | ms.CHECK_PERIODIC
             | (ms.CHECK_CANDIDATE if settings.extrapolate else 0)
-            | (ms.CHECK_QUIET if tail.usable else 0)
+            | (ms.CHECK_QUIET if tail.usable and settings.linear_tail else 0)
         ) if settings.early_stop else 0  # fmt: skip
         self.quiet_backoff = 1
         self.backoff = 4
@@ -273,9 +275,10 @@ class _Engine:
     def run_to_end(self) -> tuple[str, object]:
         s = self.s
         w = s.window
+        measure_from = max(2 * w, s.max_periods // 4 - MIN_WINDOWS * w)
         while self.period < s.max_periods:
             n = min(w - self.period % w, s.max_periods - self.period)
-            measure = self.period >= MEASURE_AFTER_WINDOWS * w
+            measure = self.period >= measure_from
             done, code, p = self.run.advance(n, measure, self.checks, self.rows, self.samples)
             self.rows[:done, ms.M_MEASURED] = 1.0 if measure else 0.0
             self._absorb(self.rows[:done], self.samples[:done], main=True)
@@ -283,7 +286,7 @@ class _Engine:
                 return self._linear_or_undamped()
             if code == ms.END_QUIET:
                 # impacts just stopped: try to prove they never come back
-                if self._tail_proven(self.run.x):
+                if self._proves(self.run.x):
                     return self._linear_or_undamped()
                 self.run.kst[ms.K_NEXT_QUIET] = self.run.kst[ms.K_PERIOD] + self.quiet_backoff
                 self.quiet_backoff = min(2 * self.quiet_backoff, 32)
@@ -301,7 +304,7 @@ class _Engine:
             elif code != ms.END_NONE:
                 return "failed", self.run.failure_reason(code)
             if self.period % w == 0 and self.checks and self._irregular_converged():
-                return "irregular", None
+                return "irregular", self._coexistence_note()
         return self._at_budget()
 
     # ------------------------------------------------------------------ outcomes
@@ -311,12 +314,10 @@ class _Engine:
             return "linear", None
         return "failed", _undamped_reason(self.tail, self.period)
 
-    def _tail_proven(self, x: np.ndarray) -> bool:
-        if not (self.checks & ms.CHECK_LINEAR):
-            return False
+    def _proves(self, x: np.ndarray) -> bool:
+        """The linear tail proof from x (when the settings allow it)."""
         T = 2.0 * math.pi / self.p.gamma_r
-        horizon = min(TAIL_HORIZON, max(self.s.max_periods - self.period, 1)) * T
-        return self.tail.proves(x, horizon)
+        return self.s.linear_tail and self.tail.proves(x, TAIL_HORIZON * T)
 
     def _sequence_rho(self, p: int) -> float | None:
         """Contraction per p periods seen in the newest samples (d1/d2)."""
@@ -401,9 +402,7 @@ class _Engine:
 
     def _classify_orbit(self, orbit: _Orbit) -> tuple[str, object]:
         rows = orbit.rows
-        if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() == 0 and self.tail.proves(
-            orbit.x0, TAIL_HORIZON * 2.0 * math.pi / self.p.gamma_r
-        ):
+        if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() == 0 and self._proves(orbit.x0):
             return self._linear_or_undamped()
         return "periodic", orbit
 
@@ -418,11 +417,39 @@ class _Engine:
         return self._stats_converged()
 
     def _stats_converged(self) -> bool:
-        """Enough stationary windows, no trend, standard error within the tolerance."""
+        """Enough stationary windows, no trend, standard error within the tolerance, and the
+        stroboscopic sequence not converging to an orbit."""
         win = self.windows
         mean, se, d, trend = mser_stats(np.array(win.gamma))
         return (se is not None and len(win) - d >= MIN_WINDOWS and se <= self.s.stat_tol_db
-                and trend <= MAX_TREND)  # fmt: skip
+                and trend <= MAX_TREND and self._converging() == 0)  # fmt: skip
+
+    def _converging(self) -> int:
+        """The smallest p whose p-spaced differences of the stroboscopic samples have shrunk a
+        hundredfold over the last half of the samples kept, or are already within 1e-6 of the
+        state: the response is approaching (or is) a period-p orbit, not irregular (0: none)."""
+        if self.nrecent < RECENT:
+            return 0
+        r = self.recent
+        scale = float(np.max(np.abs(r[-1]))) or 1.0
+        half = RECENT // 2
+        for p in range(1, ms.MAX_PERIOD + 1):
+            now = float(np.max(np.abs(r[-1] - r[-1 - p])))
+            before = float(np.max(np.abs(r[-1 - half] - r[-1 - half - p])))
+            if now <= 1e-6 * scale or now <= 1e-2 * before:
+                return p
+        return 0
+
+    def _coexistence_note(self) -> str:
+        """Irregular motion where the impact-free steady state is also admissible may be
+        transient chaos that a longer run would see die out: say so."""
+        ss = self.tail.steady
+        if ss is None or not self.tail.damped or self.tail.amp >= self.tail.gate:
+            return ""
+        return (
+            f"the impact-free response (Γ = {ss.transmittance_db:.4g} dB) is admissible here "
+            "too: this irregular motion may be transient"
+        )
 
     def _impacts_continue(self) -> bool:
         win = self.windows
@@ -432,7 +459,7 @@ class _Engine:
         """The budget ran out (or early stop was off): classify what the run shows."""
         run = self.run
         x = run.x.copy()
-        if self.tail.proves(x, TAIL_HORIZON * 2.0 * math.pi / self.p.gamma_r):
+        if self._proves(x):
             return self._linear_or_undamped()
         n = min(self.nrecent, ms.RING)
         if n >= 3:
@@ -452,7 +479,7 @@ class _Engine:
                 f"limited it within {self.period} periods"
             )
         if len(self.windows) and self._impacts_continue() and self._stats_converged():
-            return "irregular", None
+            return "irregular", self._coexistence_note()
         return "unsettled", self._unsettled_reason()
 
     def _unsettled_reason(self) -> str:
@@ -468,7 +495,10 @@ class _Engine:
         if se is None or len(win) - d < MIN_WINDOWS:
             return what + f" with {len(win) - d} stationary windows (< {MIN_WINDOWS})"
         if trend > MAX_TREND:
-            return what + f": Γ still drifts over the windows (trend t = {trend:.3g}), a slow transient"
+            return what + f": Γ still drifts (trend t = {trend:.3g}): a slow transient"
+        p = self._converging()
+        if p:
+            return what + f" while the response was still converging to a period-{p} orbit"
         return what + f": standard error of Γ {se:.3g} dB > {self.s.stat_tol_db:g} dB"
 
 
@@ -499,8 +529,7 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     T = 2.0 * math.pi / p.gamma_r
     run: KernelRun | None = None
     eng: _Engine | None = None
-    horizon = min(TAIL_HORIZON, settings.max_periods) * T
-    if settings.early_stop and tail.proves(x0, horizon):
+    if settings.early_stop and settings.linear_tail and tail.proves(x0, TAIL_HORIZON * T):
         # the start is already in the linear tail: nothing to simulate
         outcome, info = ("linear", None) if tail.damped else ("failed", _undamped_reason(tail, 0))
         work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
@@ -517,7 +546,7 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     common = dict(
         periods=work["periods"], steps=work["steps"], contact_steps=work["contact_steps"],
         coarse_steps=work["coarse_steps"], steady_period=steady_period,
-        method=settings.method, steps_per_period=run.spp if run is not None else 0,
+        steps_per_period=run.spp if run is not None else 0,
     )  # fmt: skip
     kappa, theta = sys_.kappa, p.theta
     history_start: np.ndarray | None = None
@@ -530,7 +559,8 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
             outcome="linear", transmittance_db=ss.transmittance_db, transmittance_db_se=None,
             amplitude=ss.amplitude, theta_eff=ss.theta_eff, theta_eff_slope=ss.theta_eff,
             response_period=1, impacts_per_period=(0.0, 0.0), peak_impulse=0.0,
-            floquet_multiplier=math.exp(tail.max_re * T), wall_s=0.0, reason="", **common,
+            floquet_multiplier=math.exp(tail.max_re * T), wall_s=0.0, reason="",
+            method=settings.method, **common,
         )  # fmt: skip
         history_start = tail.xp0
     elif outcome == "periodic":
@@ -549,7 +579,7 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
                                 float(rows[:, ms.M_IMP2].sum() / len(rows))),
             peak_impulse=float(rows[:, ms.M_PEAK].max()),
             floquet_multiplier=_finite_or_none(orbit.multiplier), wall_s=0.0, reason="",
-            **common,
+            method=settings.method, **common,
         )  # fmt: skip
         if res.transmittance_db is None:
             res = PointResult.failure(settings.method, "no motion of the outer mass", **common)
@@ -594,5 +624,5 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
         response_period=0,
         impacts_per_period=(float(imp[0] / win.window), float(imp[1] / win.window)),
         peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
-        wall_s=0.0, reason=reason, **common,
+        wall_s=0.0, reason=reason, method=eng.s.method, **common,
     )  # fmt: skip

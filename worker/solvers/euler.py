@@ -18,7 +18,7 @@ from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.lcp import LEMKE_OK, lemke_nb, lemke_workspace, two_stop_impulses
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
-from worker.solvers.stepping import step_end
+from worker.solvers.stepping import close_row, contact_step, extrema, record_step
 
 DEFAULT_STEPS = 1024
 
@@ -43,6 +43,12 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
     for k in range(n_periods):
         ms.begin_row(rows, k)
         period = kst[ms.K_PERIOD]
+        contact = int(kst[ms.K_CONTACT])
+        smin = np.inf
+        smax = -np.inf
+        h0 = h1 = h2 = h3 = vv = vb = 0.0
+        imp1 = imp2 = peak = nsteps = ncontact = 0.0
+        last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
             sph = math.sin(gamma_r * js * dt)
@@ -77,20 +83,29 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
             if measure:
                 # the rectangle rule over whole periods: the DFT of the scheme's own samples
                 sbv = ms.dot(d, x, n)
-                rows[k, ms.M_S_RE] += dt * x[n] * cph
-                rows[k, ms.M_S_IM] -= dt * x[n] * sph
-                rows[k, ms.M_SB_RE] += dt * sbv * cph
-                rows[k, ms.M_SB_IM] -= dt * sbv * sph
+                h0 += dt * x[n] * cph
+                h1 -= dt * x[n] * sph
+                h2 += dt * sbv * cph
+                h3 -= dt * sbv * sph
             for i in range(nx):
                 x[i] = xn[i]
+            v1 = x[N + n]
             if measure:
-                v1 = x[N + n]
-                rows[k, ms.M_VV] += dt * v1 * v1
-                rows[k, ms.M_VB] += dt * ms.dot(d, x[N:], n) * v1
-            step_end(rows, k, kst, hist, xh, s0, v0, x[n], x[N + n], dt, l1, l2, js / spp,
-                     period * T + (js + 1) * dt, x, nx, W, d, N, n, g1, g2)  # fmt: skip
+                vv += dt * v1 * v1
+                vb += dt * ms.dot(d, x[N:], n) * v1
+            smin, smax = extrema(s0, v0, x[n], v1, dt, smin, smax)
+            nsteps += 1.0
+            if l1 > 0.0 or l2 > 0.0:
+                ncontact += 1.0
+            if l1 > 0.0 or l2 > 0.0 or contact != 0:
+                contact, imp1, imp2, peak, last = contact_step(
+                    l1, l2, js / spp, contact, imp1, imp2, peak, last, W, x, N, g1, g2
+                )
+            if hist.shape[0] > 0:
+                record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
+        close_row(rows, k, kst, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
+                  nsteps, ncontact, 0.0, contact)  # fmt: skip
         kst[ms.K_PERIOD] += 1.0
-        rows[k, ms.M_REGIME] = kst[ms.K_CONTACT]
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
                                 lin_gate, checks, div_limit, tol)  # fmt: skip
         if code != ms.END_NONE:
@@ -158,9 +173,10 @@ class EulerRun(KernelRun):
 
     name = "euler"
 
-    def __init__(self, sys_: System, settings: SolverSettings, *args) -> None:
-        super().__init__(sys_, settings, *args)
-        p = sys_.params
+    @classmethod
+    def check_point(cls, sys_: System, settings: SolverSettings) -> int:
+        """The steps per period this point runs at; refused beyond the stability limit or
+        beyond ``MAX_STEPS_PER_PERIOD``."""
         spp = settings.steps_per_period or default_steps(sys_)
         if spp > MAX_STEPS_PER_PERIOD:
             # only a default can get here (an explicit value is validated): refuse, don't hang
@@ -169,7 +185,13 @@ class EulerRun(KernelRun):
                 f"ω̃_max = {sys_.omega_max():.6g}), more than the limit {MAX_STEPS_PER_PERIOD}; "
                 f"use method exponential or event"
             )
-        check_stable(sys_, 2.0 * math.pi / p.gamma_r / spp)
+        check_stable(sys_, 2.0 * math.pi / sys_.params.gamma_r / spp)
+        return spp
+
+    def __init__(self, sys_: System, settings: SolverSettings, *args) -> None:
+        super().__init__(sys_, settings, *args)
+        p = sys_.params
+        spp = self.check_point(sys_, settings)
         self.spp = spp
         Minv = sys_.Minv
         c = np.ascontiguousarray

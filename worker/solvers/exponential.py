@@ -1,4 +1,4 @@
-"""``method: exponential``: the exact propagator with Moreau impulses (MODEL.md §5).
+"""``method: exponential``: the exact propagator with Moreau impulses (docs/model.md §5).
 
 Free flight takes whole coarse steps with the exact map ``x ← Φ x + E [cos; sin]`` (the
 harmonic forcing carried in the state). Before a coarse step is kept, the tip's path over it
@@ -22,7 +22,15 @@ from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.lcp import two_stop_impulses
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
-from worker.solvers.stepping import gauss_rows, harmonics, portrait, step_end
+from worker.solvers.stepping import (
+    close_row,
+    contact_step,
+    extrema,
+    gauss_rows,
+    harmonics,
+    portrait,
+    record_step,
+)
 
 DEFAULT_STEPS = 2048
 # The fine step's contact gain must be at least this fraction of its short-step value G·Δτ;
@@ -59,6 +67,12 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
     for k in range(n_periods):
         ms.begin_row(rows, k)
         period = kst[ms.K_PERIOD]
+        contact = int(kst[ms.K_CONTACT])
+        smin = np.inf
+        smax = -np.inf
+        h0 = h1 = h2 = h3 = vv = vb = 0.0
+        imp1 = imp2 = peak = nsteps = ncontact = ncoarse = 0.0
+        last = -1.0
         for jc in range(n_coarse):
             phase = jc * dtc
             tau_c = period * T + phase
@@ -79,15 +93,28 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 wmin, _, wmax, _ = ms.cubic_minmax(w0, wv0, w1, wv1, dtc)
                 if wmax < g1 * (1.0 - margin) and wmin > -g2 * (1.0 - margin):
                     if measure:
-                        harmonics(rows, k, psi_c, psib_f, 0.0, x, cf, sf, cos0, -sin0, nx)
-                        portrait(rows, k, gl_c, glb0, 0.0, x, cf, sf, dtc, nx)
+                        a0, a1, a2, a3 = harmonics(psi_c, psib_f, 0.0, x, cf, sf, cos0, -sin0,
+                                                   nx)  # fmt: skip
+                        h0 += a0
+                        h1 += a1
+                        h2 += a2
+                        h3 += a3
+                        b0, b1 = portrait(gl_c, glb0, 0.0, x, cf, sf, dtc, nx)
+                        vv += b0
+                        vb += b1
                     s0 = x[n]
                     v0 = x[N + n]
                     for i in range(nx):
                         x[i] = xn[i]
-                    rows[k, ms.M_COARSE] += 1.0
-                    step_end(rows, k, kst, hist, xh, s0, v0, x[n], x[N + n], dtc, 0.0, 0.0,
-                             phase / T, tau_c + dtc, x, nx, W, d, N, n, g1, g2)  # fmt: skip
+                    ncoarse += 1.0
+                    nsteps += 1.0
+                    smin, smax = extrema(s0, v0, x[n], x[N + n], dtc, smin, smax)
+                    if contact != 0:
+                        contact, imp1, imp2, peak, last = contact_step(
+                            0.0, 0.0, phase / T, contact, imp1, imp2, peak, last, W, x, N, g1, g2
+                        )
+                    if hist.shape[0] > 0:
+                        record_step(hist, xh, kst, tau_c + dtc, x, nx, W, d, N, n, 0.0, 0.0)
                     continue
             cph = cos0
             sph = sin0
@@ -109,15 +136,30 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                         xn[i] += b_f[i] * P
                     v0 += MinvX_s * P  # Moreau: the step's trajectory starts after the impulse
                 if measure:
-                    harmonics(rows, k, psi_f, psib_f, P, x, cf, sf, cph, -sph, nx)
-                    portrait(rows, k, gl_f, glb_f, P, x, cf, sf, dtf, nx)
+                    a0, a1, a2, a3 = harmonics(psi_f, psib_f, P, x, cf, sf, cph, -sph, nx)
+                    h0 += a0
+                    h1 += a1
+                    h2 += a2
+                    h3 += a3
+                    b0, b1 = portrait(gl_f, glb_f, P, x, cf, sf, dtf, nx)
+                    vv += b0
+                    vb += b1
                 for i in range(nx):
                     x[i] = xn[i]
-                step_end(rows, k, kst, hist, xh, s0, v0, x[n], x[N + n], dtf, l1, l2,
-                         (phase + js * dtf) / T, tau_c + (js + 1) * dtf, x, nx, W, d, N, n, g1,
-                         g2)  # fmt: skip
+                nsteps += 1.0
+                smin, smax = extrema(s0, v0, x[n], x[N + n], dtf, smin, smax)
+                if P != 0.0:
+                    ncontact += 1.0
+                if P != 0.0 or contact != 0:
+                    contact, imp1, imp2, peak, last = contact_step(
+                        l1, l2, (phase + js * dtf) / T, contact, imp1, imp2, peak, last, W, x,
+                        N, g1, g2,
+                    )  # fmt: skip
+                if hist.shape[0] > 0:
+                    record_step(hist, xh, kst, tau_c + (js + 1) * dtf, x, nx, W, d, N, n, l1, l2)
+        close_row(rows, k, kst, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
+                  nsteps, ncontact, ncoarse, contact)  # fmt: skip
         kst[ms.K_PERIOD] += 1.0
-        rows[k, ms.M_REGIME] = kst[ms.K_CONTACT]
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
                                 lin_gate, checks, div_limit, tol)  # fmt: skip
         if code != ms.END_NONE:

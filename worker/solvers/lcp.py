@@ -1,4 +1,4 @@
-"""Linear complementarity problems for the contact step (MODEL.md §5).
+"""Linear complementarity problems for the contact step (docs/model.md §5).
 
 The paper's time-stepping scheme computes the contact impulses of each step from an LCP:
 
@@ -107,7 +107,7 @@ def _validate_finite(value: float, name: str) -> float:
 
 
 def two_stop_matrix(G_dt: float) -> np.ndarray:
-    """LCP matrix of the two-stop contact problem, ``G dt [[1, -1], [-1, 1]]`` (MODEL.md §5).
+    """LCP matrix of the two-stop contact problem, ``G dt [[1, -1], [-1, 1]]`` (docs/model.md §5).
 
     Parameters
     ----------
@@ -131,7 +131,7 @@ def two_stop_matrix(G_dt: float) -> np.ndarray:
 
 
 def two_stop_closed_form(G_dt: float, c1: float, c2: float) -> tuple[float, float]:
-    """Closed-form impulses of the two-stop LCP of MODEL.md §5.
+    """Closed-form impulses of the two-stop LCP of docs/model.md §5.
 
     Solves ``w = G dt [[1, -1], [-1, 1]] [L1, L2] + [c1, c2]``, ``L >= 0``, ``w >= 0``,
     ``L . w = 0``, where ``c1``, ``c2`` are the predicted gaps at the two stops. Because the

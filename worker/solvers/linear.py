@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from worker.model import SteadyState, System, steady_state
-from worker.solvers.event.roots import STACK, first_root
+from worker.solvers.event.roots import STACK, STACK_COLS, first_root
 
 __all__ = ["GATE_RTOL", "LinearTail", "linear_tail"]
 
@@ -77,7 +77,7 @@ class LinearTail:
         coef = np.append(c, self.w_hat)
         lam = np.append(self.lam, 1j * self.gamma_r)
         nk = len(coef)
-        stack = np.zeros((STACK, 6))
+        stack = np.zeros((STACK, STACK_COLS))
         w4 = np.zeros(nk)
         tol_t = 1e-9 * hi
         # stop 1: g1 - w > 0; stop 2: g2 + w > 0, with w = Re Σ coef e^{λt}

@@ -76,6 +76,7 @@ CHECK_CANDIDATE = 4
 CHECK_QUIET = 8
 
 MAX_PERIOD = 8  # longest response period looked for
+NOISE = 1e-12  # relative size of a state difference that is integration noise (event times)
 RING = 4 * MAX_PERIOD  # stroboscopic samples kept (candidates look 3p back)
 OPEN_FRAC = 1e-3  # a contact episode ends once the gap has opened to this fraction of it
 
@@ -98,7 +99,7 @@ def begin_row(rows, k):
     rows[k, M_TAIL] = -1.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def dot(a, x, n):
     """Σ a[i] x[i] over the first n entries."""
     acc = 0.0
@@ -150,7 +151,7 @@ def cubic_minmax(f0, d0, f1, d1, ln):
     return fmin, tmin, fmax, tmax
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def add_extrema(rows, k, lo, hi):
     """Widen the period's range of s to [lo, hi]."""
     if hi > rows[k, M_SMAX]:
@@ -159,7 +160,7 @@ def add_extrema(rows, k, lo, hi):
         rows[k, M_SMIN] = lo
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def add_impulses(rows, kst, k, l1, l2, phase):
     """Count contact episodes: one begins with an impulse at a stop not already in contact."""
     contact = kst[K_CONTACT]
@@ -178,7 +179,7 @@ def add_impulses(rows, kst, k, l1, l2, phase):
         kst[K_CONTACT] = 2.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def release_if_open(kst, w, g1, g2):
     """End the contact episode once the tip has opened its stop's gap by ``OPEN_FRAC``, so a
     scheme's chatter at a release is not counted as new impacts."""
@@ -209,6 +210,21 @@ def record(hist, xh, kst, tau, s, w, sb, v, vb, l1, l2, kind, x, nx):
 
 
 H_COLS = 9  # τ, s, w_tip, s_b, ṡ, ṡ_b, impulse 1, impulse 2, kind
+
+#: The channels of a time history (``simulate_point(..., history_periods=n)``), described.
+HISTORY_FIELDS = {
+    "tau": "non-dimensional time tau since the start of the recorded stretch",
+    "s": "displacement s of the outer mass",
+    "w_tip": "beam tip deflection w_tip relative to the mass",
+    "s_b": "mean beam deflection s_b (Eq. 34b)",
+    "s_dot": "velocity of the outer mass",
+    "s_b_dot": "rate of the mean beam deflection",
+    "theta_eff": "instantaneous effective mass ratio (Eq. 36); missing where singular",
+    "impulse1": "contact impulse at stop 1 in the step (event: over the piece)",
+    "impulse2": "contact impulse at stop 2 in the step (event: over the piece)",
+    "kind": "sample kind: 0 step or grid point, 1/2 impact at stop 1/2, 3/4 release from "
+    "stop 1/2 (event method)",
+}
 
 
 # --------------------------------------------------------------------------- period end
@@ -254,7 +270,7 @@ def periodicity(ring, nring, period, x, tol, nx):
         d1 = _dist(ring, cur, a, nx)
         if d1 > tol * scale:
             continue
-        if d1 <= 1e-14 * scale:
+        if d1 <= NOISE * scale:  # repeats to the integration's own noise: nothing to wait for
             return _smallest_divisor(ring, period, tol, nx, p, scale)
         d2 = _dist(ring, a, b, nx)
         if d2 > 0.0:

@@ -89,6 +89,9 @@ class SolverSettings:
     extrapolate : bool
         Accelerate convergence to a periodic orbit by vector extrapolation of the stroboscopic
         sequence (every accepted orbit is confirmed by integration either way).
+    linear_tail : bool
+        Prove impact-free tails and report the closed-form steady state (``linear``). Off:
+        integrate them like any other response (to check a method against the closed form).
     lcp : {"closed", "lemke"}
         ``euler`` only: the two-stop LCP of each step in closed form or by Lemke's algorithm.
     """
@@ -104,6 +107,7 @@ class SolverSettings:
     adaptive: bool = True
     early_stop: bool = True
     extrapolate: bool = True
+    linear_tail: bool = True
     lcp: str = "closed"
 
     def __post_init__(self) -> None:
@@ -123,7 +127,7 @@ class SolverSettings:
                  "near_margin": (0.0, 1.0, False)}  # fmt: skip
         for name, (lo, hi, lo_open) in reals.items():
             object.__setattr__(self, name, _real_in(name, getattr(self, name), lo, hi, lo_open))
-        for name in ("adaptive", "early_stop", "extrapolate"):
+        for name in ("adaptive", "early_stop", "extrapolate", "linear_tail"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.lcp not in LCP_SOLVERS:
@@ -182,14 +186,14 @@ class PointResult:
         return out
 
     @classmethod
-    def failure(cls, method: str, reason: str, *, steps_per_period: int = 0,
-                periods: int = 0, wall_s: float = 0.0, **counts: int) -> PointResult:  # fmt: skip
-        """The record of a point that failed (or could not be run) with ``reason``."""
+    def failure(cls, method: str, reason: str, **counts: Any) -> PointResult:
+        """The record of a point that failed (or could not be run) with ``reason``; ``counts``
+        may give the work done (``periods``, ``steps``, …, ``steps_per_period``)."""
+        work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0, steady_period=-1,
+                    wall_s=0.0, steps_per_period=0)  # fmt: skip
+        work.update({k: v for k, v in counts.items() if k in work})
         return cls(
             outcome="failed", transmittance_db=None, transmittance_db_se=None, amplitude=None,
             theta_eff=None, theta_eff_slope=None, response_period=0, impacts_per_period=None,
-            peak_impulse=None, floquet_multiplier=None, periods=periods,
-            steps=counts.get("steps", 0), contact_steps=counts.get("contact_steps", 0),
-            coarse_steps=counts.get("coarse_steps", 0), steady_period=-1, wall_s=wall_s,
-            reason=reason, method=method, steps_per_period=steps_per_period,
+            peak_impulse=None, floquet_multiplier=None, reason=reason, method=method, **work,
         )  # fmt: skip

@@ -9,7 +9,7 @@ from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.event import kernel as ek
 from worker.solvers.event.regimes import MAX_COND, prepare_event
-from worker.solvers.event.roots import STACK
+from worker.solvers.event.roots import STACK, STACK_COLS
 from worker.solvers.settings import SolverSettings, int_in
 
 DEFAULT_GRID = 64
@@ -27,15 +27,24 @@ class EventRun(KernelRun):
 
     name = "event"
 
-    def __init__(self, sys_: System, settings: SolverSettings, *args,
-                 event_tol: float = DEFAULT_EVENT_TOL,
-                 max_events_per_period: int = DEFAULT_MAX_EVENTS_PER_PERIOD) -> None:  # fmt: skip
-        super().__init__(sys_, settings, *args)
-        if isinstance(event_tol, bool) or not isinstance(event_tol, (int, float)) or not (
-            0.0 < event_tol < 1e-2
+    @classmethod
+    def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL,
+                      max_events_per_period: int = DEFAULT_MAX_EVENTS_PER_PERIOD,
+                      **others: object) -> tuple[float, int]:  # fmt: skip
+        """Validated ``(event_tol, max_events_per_period)``; other options are refused."""
+        super().check_options(**others)
+        if (
+            isinstance(event_tol, bool)
+            or not isinstance(event_tol, (int, float))
+            or not (0.0 < event_tol < 1e-2)
         ):
             raise ValueError(f"event_tol must be in (0, 0.01), got {event_tol!r}")
-        self.max_events = int_in("max_events_per_period", max_events_per_period, 1, 10**9)
+        events = int_in("max_events_per_period", max_events_per_period, 1, 10**9)
+        return float(event_tol), events
+
+    def __init__(self, sys_: System, settings: SolverSettings, *args, **options) -> None:
+        super().__init__(sys_, settings, *args)
+        event_tol, self.max_events = self.check_options(**options)
         p = sys_.params
         N = sys_.ndof
         nzm = 2 * N + 2
@@ -55,13 +64,13 @@ class EventRun(KernelRun):
             ea.nzr, ea.nk, ea.Phi, ea.eh, ea.lam, ea.V, ea.Vi, ea.wt, ea.R, ea.RV, ea.Pin,
             ea.Qout, ea.psi, ea.gl, sys_.W, np.ascontiguousarray(sys_.Minv @ sys_.X), sys_.G,
             p.g1, p.g2, self.bilateral, N, self.spp, p.gamma_r, self.f_scale,
-            settings.near_margin, float(event_tol), self.max_events,
+            settings.near_margin, event_tol, self.max_events,
         )  # fmt: skip
         self.work = (
             np.zeros(nzm), np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex),
             np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex),
-            np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex), np.zeros(nzm),
-            np.zeros((STACK, 6)), np.zeros(nzm),
+            np.zeros(nzm, dtype=complex), np.zeros(nzm),
+            np.zeros((STACK, STACK_COLS)), np.zeros(nzm),
         )  # fmt: skip
 
     def _reset(self) -> None:
@@ -70,7 +79,7 @@ class EventRun(KernelRun):
         self.y[nx] = self.f_scale
         self.y[nx + 1] = 0.0
         ea = self.ea
-        _, _, a, _, _, cw, _, _, _, _ = self.work
+        _, a, _, _, cw, _, _, _, _ = self.work
         ek.start_state(self.y, self.kst, ea.R, ea.RV, ea.Vi, ea.lam, ea.nk, self.bilateral,
                        self.sys.ndof, self.sys.params.g1, self.sys.params.g2, self.h, a,
                        cw)  # fmt: skip

@@ -61,7 +61,16 @@ K_SKIP_REM = ms.K_METHOD + 3
 K_PENDING = ms.K_METHOD + 4  # >0: impact at once at this stop; <0: stick-or-leave after one
 K_EVLOG = ms.K_METHOD + 5  # event log rows written
 
-EV_COLS = 5  # event log: τ, kind (1 impact, 2 release), stop, residual, impulse
+#: Columns of the event log (``history["events"]`` of method ``event``), described.
+EVENT_FIELDS = {
+    "tau": "non-dimensional time tau of the event",
+    "kind": "event kind: 1 impact, 2 release",
+    "stop": "stop index (1 or 2)",
+    "residual": "residual of the event condition at the located time (gap over clearance at "
+    "an impact, contact force over its scale at a release)",
+    "impulse": "contact impulse of the event",
+}
+EV_COLS = len(EVENT_FIELDS)
 
 # ----------------------------------------------------------------------------- state helpers
 
@@ -73,17 +82,6 @@ def _modal(Vi, r, y, nk, nz, a):
         for j in range(nz):
             acc += Vi[r, i, j] * y[j]
         a[i] = acc
-
-
-@njit(cache=True, nogil=True, fastmath=FAST)
-def _state_at(V, lam, r, a, nk, nz, t, out, tmp):
-    for k in range(nk):
-        tmp[k] = a[k] * cmath.exp(lam[r, k] * t)
-    for i in range(nz):
-        acc = 0.0
-        for k in range(nk):
-            acc += (V[r, i, k] * tmp[k]).real
-        out[i] = acc
 
 
 @njit(cache=True, nogil=True, fastmath=FAST)
@@ -226,9 +224,20 @@ def _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw):
 
 
 @njit(cache=True, nogil=True)
-def _measure_piece(rows, k, r, a, nk, lam, RV, wt, ln, s0, sd0, s1, sd1, ph, gamma_r, measure,
-                   tol_t, cw):  # fmt: skip
-    """Measure an exactly propagated piece of length ln (modal coefficients a at its start)."""
+def _phi_shift(E, lam, shift, ln, es):
+    """(e^{(λ+shift)·ln} - 1)/(λ + shift) from E = e^{λ·ln} and es = e^{shift·ln}."""
+    x = lam + shift
+    z = x * ln
+    if abs(z) < 1e-3:
+        return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
+    return (E * es - 1.0) / x
+
+
+@njit(cache=True, nogil=True)
+def _measure_piece(rows, k, r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r,
+                   measure, tol_t, cw):  # fmt: skip
+    """Measure an exactly propagated piece of length ln: modal coefficients a at its start,
+    E = e^{λ ln} of the kept modes."""
     if ln <= 0.0:
         return
     lo = min(s0, s1)
@@ -244,16 +253,19 @@ def _measure_piece(rows, k, r, a, nk, lam, RV, wt, ln, s0, sd0, s1, sd1, ph, gam
     if not measure:
         return
     shift = -1j * gamma_r
+    es = cmath.exp(shift * ln)
     for q in range(2):
         row = R_S if q == 0 else R_SB
         acc = 0.0 + 0.0j
         for m in range(nk):
             c = RV[r, row, m] * a[m]
+            lm = lam[r, m]
             if wt[r, m] == 2.0:  # the pair (λ, λ̄) of a real sum: both terms of ∫ Re(·) e^{-iγt}
-                acc += 0.5 * (c * rt.phi1(lam[r, m] + shift, ln)
-                              + c.conjugate() * rt.phi1(lam[r, m].conjugate() + shift, ln))  # fmt: skip
+                acc += 0.5 * (c * _phi_shift(E[m], lm, shift, ln, es)
+                              + c.conjugate() * _phi_shift(E[m].conjugate(), lm.conjugate(),
+                                                           shift, ln, es))  # fmt: skip
             else:
-                acc += c * rt.phi1(lam[r, m] + shift, ln)
+                acc += c * _phi_shift(E[m], lm, shift, ln, es)
         _phase_add(rows, k, q, acc.real, acc.imag, ph)
     vv = 0.0
     vb = 0.0
@@ -396,7 +408,7 @@ def release(y, kst, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw):
 def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
                  nzr, nk, Phi, eh, lam, V, Vi, wt, R, RV, Pin, Qout, psi, gl, W, MinvX, G, g1,
                  g2, bilateral, N, n_grid, gamma_r, f_scale, margin, event_tol, max_events_pp,
-                 lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, tmp, a, c1, c2, cw, Ew,
+                 lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, a, c1, c2, cw, Ew,
                  x2, stack, w4):  # fmt: skip
     """Advance the regime state ``y`` (and its full state ``x``) by up to ``n_periods``
     periods; returns (periods done, END code, period found)."""
@@ -410,6 +422,11 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         period = kst[ms.K_PERIOD]
         ev_period = 0
         failed = ms.END_NONE
+        # kept in registers over the period (stores inside the loop cost the loads of y)
+        smin_q = np.inf
+        smax_q = -np.inf
+        nsteps = 0.0
+        ncoarse = 0.0
         for j in range(n_grid):
             t = 0.0
             ph0 = 2.0 * math.pi * j / n_grid
@@ -440,10 +457,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     kk = pending
                     wu = _row(R, 0, R_W, y, nzm)
                     wd = _row(R, 0, R_WD, y, nzm)
-                    if kk == 1:
-                        resid = (g1 - wu) / max(g1, 1e-300)
-                    else:
-                        resid = (g2 + wu) / max(g2, 1e-300)
+                    gap = g1 - wu if kk == 1 else g2 + wu
+                    resid = gap / max(g1 if kk == 1 else g2, 1e-300)
                     P = -wd / G
                     for i in range(N):
                         y[N + i] += MinvX[i] * P
@@ -480,8 +495,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         w1 = _row(R, 0, R_W, ye, nz)
                         d1 = _row(R, 0, R_WD, ye, nz)
                         wmin, _, wmax, _ = ms.cubic_minmax(w0, d0, w1, d1, h)
-                        bnd = (2.0 * h**4 / 384.0
-                               * (abs(_row(R, 0, R_W4, y, nz)) + abs(_row(R, 0, R_W4, ye, nz))))
+                        bnd = (
+                            2.0
+                            * h**4
+                            / 384.0
+                            * (abs(_row(R, 0, R_W4, y, nz)) + abs(_row(R, 0, R_W4, ye, nz)))
+                        )
                         quick = (wmax + bnd < g1 * (1.0 - margin)
                                  and wmin - bnd > -g2 * (1.0 - margin))  # fmt: skip
                     elif bilateral:
@@ -493,8 +512,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         l1 = sgn * _row(R, r, R_MU, ye, nz)
                         e1 = sgn * _row(R, r, R_MUD, ye, nz)
                         lmin, _, _, _ = ms.cubic_minmax(l0, e0, l1, e1, h)
-                        bnd = (2.0 * h**4 / 384.0
-                               * (abs(_row(R, r, R_MU4, y, nz)) + abs(_row(R, r, R_MU4, ye, nz))))
+                        bnd = (
+                            2.0
+                            * h**4
+                            / 384.0
+                            * (abs(_row(R, r, R_MU4, y, nz)) + abs(_row(R, r, R_MU4, ye, nz)))
+                        )
                         quick = lmin - bnd > margin * max(l0, l1)
                     if quick:
                         if measure:
@@ -509,10 +532,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             sd1 = _row(R, r, R_SD, ye, nz)
                             if sd0 * sd1 < 0.0:
                                 lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, h)
-                            if hi > rows[k, ms.M_SMAX]:
-                                rows[k, ms.M_SMAX] = hi
-                            if lo < rows[k, ms.M_SMIN]:
-                                rows[k, ms.M_SMIN] = lo
+                            smax_q = max(smax_q, hi)
+                            smin_q = min(smin_q, lo)
                         il = 0.0
                         if hist.shape[0] > 0 and r != 0:
                             _modal(Vi, r, y, nkr, nz, a)
@@ -523,8 +544,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             _opened(kst, y, ye, h, R, RV, Vi, lam, nk, nz, g1, g2, a, False, cw)
                         for i in range(nz):
                             y[i] = ye[i]
-                        rows[k, ms.M_STEPS] += 1.0
-                        rows[k, ms.M_COARSE] += 1.0
+                        nsteps += 1.0
+                        ncoarse += 1.0
                         if hist.shape[0] > 0:
                             _record(hist, xh, kst, period * T + (j + 1) * h, R, r, y, nz,
                                     il if r == 1 else 0.0, il if r == 2 else 0.0, 0.0, Qout, N,
@@ -573,13 +594,20 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             kind = 2 + r  # release from stop r
                 lp = t_ev if t_ev >= 0.0 else ln
                 if t_ev >= 0.0:
-                    _state_at(V, lam, r, a, nkr, nz, lp, ye, tmp)
+                    for q in range(nkr):
+                        Ew[q] = cmath.exp(lam[r, q] * lp)
+                    _state_E(V, r, a, Ew, nkr, nz, ye)
                 elif not have_ye:
                     _state_E(V, r, a, Ew, nkr, nz, ye)
-                _measure_piece(rows, k, r, a, nkr, lam, RV, wt, lp, _row(R, r, R_S, y, nz),
-                               _row(R, r, R_SD, y, nz), _row(R, r, R_S, ye, nz),
-                               _row(R, r, R_SD, ye, nz), ph0 + gamma_r * t, gamma_r, measure,
-                               tol_t, cw)  # fmt: skip
+                if measure and t == 0.0 and t_ev < 0.0:
+                    # a whole interval after all: its precomputed rows measure it
+                    _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam,
+                                      nk, a, cw, tol_t)  # fmt: skip
+                else:
+                    _measure_piece(rows, k, r, a, nkr, lam, RV, wt, Ew, lp,
+                                   _row(R, r, R_S, y, nz), _row(R, r, R_SD, y, nz),
+                                   _row(R, r, R_S, ye, nz), _row(R, r, R_SD, ye, nz),
+                                   ph0 + gamma_r * t, gamma_r, measure, tol_t, cw)  # fmt: skip
                 il = 0.0
                 if hist.shape[0] > 0 and r != 0:
                     _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
@@ -593,7 +621,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         kst[K_SKIP_ON] = 0.0
                 for i in range(nz):
                     y[i] = ye[i]
-                rows[k, ms.M_STEPS] += 1.0
+                nsteps += 1.0
                 t = h if t_ev < 0.0 else t + lp
                 tau_now = period * T + j * h + t
                 if t_ev < 0.0:
@@ -624,6 +652,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
             ic = 2 * N if kst[K_REGIME] == 0.0 else 2 * N - 2
             y[ic] = f_scale * math.cos(ang)
             y[ic + 1] = f_scale * math.sin(ang)
+        ms.add_extrema(rows, k, smin_q, smax_q)
+        rows[k, ms.M_STEPS] += nsteps
+        rows[k, ms.M_COARSE] += ncoarse
         if failed != ms.END_NONE:
             kst[ms.K_PERIOD] += 1.0
             return k + 1, failed, 0

@@ -3,7 +3,7 @@
 * Regime 0, free flight: ``z = [u; q; c; s]`` with ``(c, s) = f·(cos γτ, sin γτ)``, so the
   harmonic forcing is part of the linear system ``ż = A₀ z`` (``System.augmented_matrix``).
 * Regimes 1 and 2, the tip stuck on stop 1 (``w_tip = g̃1``) or stop 2 (``w_tip = -g̃2``): the
-  constrained system of MODEL.md §8 in reduced coordinates ``u = u₁ w* + Z v`` (``Z`` spans the
+  constrained system of docs/model.md §5 in reduced coordinates ``u = u₁ w* + Z v`` (``Z`` spans the
   null space of ``Wᵀ``, ``u₁ = W/|W|²``), tested with ``Y`` (null space of ``Xᵀ``, which
   removes the contact force): ``y = [v; v̇; c; s; w*]``, ``ẏ = A₁ y``. The trailing state is the
   stop's position ``w*`` itself (constant), so the matrix does not depend on the clearance and
@@ -74,7 +74,7 @@ def _null_basis(v: np.ndarray) -> np.ndarray:
 
 
 def stuck_matrices(sys_: System) -> tuple[np.ndarray, ...]:
-    """The constrained system with the tip held on a stop at ``w_tip = w*`` (MODEL.md §8).
+    """The constrained system with the tip held on a stop at ``w_tip = w*`` (docs/model.md §5, §7).
 
     Returns ``(A, Pin, Qout, mu)``: ``ẏ = A y`` with ``y = [v; v̇; c; s; w*]``; ``y = Pin z``
     maps a free state onto the constraint (the caller sets the last entry to ``w*``);
@@ -152,9 +152,7 @@ def _reduce(lam, V, Vi):
     Vr = V[:, keep] * wt
     Vir = Vi[keep, :]
     eye = np.eye(len(lam))
-    if np.sum(lam.imag > 0) != np.sum(lam.imag < 0) or np.max(
-        np.abs((Vr @ Vir).real - eye)
-    ) > 1e-9:
+    if np.sum(lam.imag > 0) != np.sum(lam.imag < 0) or np.max(np.abs((Vr @ Vir).real - eye)) > 1e-9:
         return lam, V, Vi, np.ones(len(lam))
     return lam[keep], Vr, Vir, wt
 

@@ -23,6 +23,7 @@ from numba import njit
 from worker.solvers.measure import cubic_minmax
 
 STACK = 160  # pieces the search may hold (depth ~ 4 per level)
+STACK_COLS = 6  # lo, hi, f and ḟ at both ends
 
 
 @njit(cache=True, nogil=True)
@@ -130,7 +131,7 @@ def crit(c, lam, nz, lo, hi, dlo, dhi, guess):
 def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
     """First t in [t0, t1] where f reaches zero, or -1 if f > 0 throughout (proven).
 
-    ``stack`` (STACK × 6) and ``w4`` (>= nz) are scratch arrays."""
+    ``stack`` (STACK × STACK_COLS) and ``w4`` (>= nz) are scratch arrays."""
     f0, d0 = ev(c, lam, nz, off, t0)
     if f0 <= 0.0:
         return t0
@@ -162,8 +163,7 @@ def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
                 return refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t)
         else:
             fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
-            bnd = bound4(w4, lam, nz, lo, hi)
-            if fmin - bnd > 0.0:
+            if fmin - bound4(w4, lam, nz, lo, hi) > 0.0:
                 continue
             if ln <= tiny or sp >= STACK - 5:
                 tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
@@ -196,27 +196,54 @@ def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
 
 @njit(cache=True, nogil=True)
 def clear_whole(c, lam, E, nz, off, ln):
-    """True if f > 0 on [0, ln] is proven by the Hermite cubic and the error bound, with
-    ``E = e^{λ·ln}`` given (no exponentials evaluated)."""
+    """True if f > 0 on [0, ln] is proven, with ``E = e^{λ·ln}`` given (no exponentials
+    evaluated): by the Hermite cubic of the whole sum and its error bound, or by that of the
+    slow modes with the fast modes (|λ| ln > 4.43) bounded by their size."""
     f0 = off
     d0 = 0.0
     f1 = off
     d1 = 0.0
+    fs0 = off
+    ds0 = 0.0
+    fs1 = off
+    ds1 = 0.0
     acc = 0.0
+    acc_s = 0.0
+    bfast = 0.0
+    cut2 = (4.43 / ln) ** 2
     for k in range(nz):
         cl = c[k] * lam[k]
         ce = c[k] * E[k]
-        f0 += c[k].real
-        d0 += cl.real
-        f1 += ce.real
-        d1 += (cl * E[k]).real
+        a0 = c[k].real
+        b0 = cl.real
+        a1 = ce.real
+        b1 = (cl * E[k]).real
+        f0 += a0
+        d0 += b0
+        f1 += a1
+        d1 += b1
         m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
         grow = 1.0 if lam[k].real <= 0.0 else math.exp(lam[k].real * ln)
-        acc += abs(c[k]) * m2 * m2 * grow
+        w = abs(c[k]) * grow
+        acc += w * m2 * m2
+        if m2 > cut2:
+            bfast += w
+        else:
+            fs0 += a0
+            ds0 += b0
+            fs1 += a1
+            ds1 += b1
+            acc_s += w * m2 * m2
     if f0 <= 0.0 or f1 <= 0.0:
         return False
+    l4 = ln * ln * ln * ln / 384.0
     fmin, _, _, _ = cubic_minmax(f0, d0, f1, d1, ln)
-    return fmin - acc * ln * ln * ln * ln / 384.0 > 0.0
+    if fmin - acc * l4 > 0.0:
+        return True
+    if bfast == 0.0:
+        return False
+    smin, _, _, _ = cubic_minmax(fs0, ds0, fs1, ds1, ln)
+    return smin - acc_s * l4 - bfast > 0.0
 
 
 @njit(cache=True, nogil=True)

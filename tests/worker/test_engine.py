@@ -1,0 +1,206 @@
+"""How a point ends (worker/solvers/engine.py): every outcome, proven or labelled."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from worker.model import CellParams, assemble, steady_state
+from worker.simulate import SolverSettings, simulate_point
+from worker.solvers.engine import mser_stats, rre
+from worker.solvers.linear import linear_tail
+
+METHODS = ("event", "exponential", "euler")
+FIG5 = dict(sigma=0.05, gamma_s=1.0)
+
+
+def cell(**kw) -> CellParams:
+    return CellParams(**{"theta": 0.3, "xi": 0.05, "g1": 0.1, "g2": 0.1, **FIG5, **kw})
+
+
+# --------------------------------------------------------------------------- the numerics
+
+
+def test_rre_finds_the_fixed_point_of_an_affine_map_exactly():
+    rng = np.random.default_rng(1)
+    n = 6
+    Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+    J = Q @ np.diag([0.95, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
+    xstar = rng.normal(size=n)
+    x = [xstar + rng.normal(size=n)]
+    for _ in range(n + 1):
+        x.append(xstar + J @ (x[-1] - xstar))
+    xs, rho, fit = rre(np.array(x))
+    np.testing.assert_allclose(xs, xstar, atol=1e-9)
+    assert rho == pytest.approx(0.95, abs=1e-6) and fit < 1e-8
+    # with fewer samples than modes the limit is approximate, and the fit says so
+    xs3, _, fit3 = rre(np.array(x[:4]))
+    assert np.max(np.abs(xs3 - xstar)) > 1e-6 and fit3 > 1e-6
+
+
+def test_mser_cuts_the_transient_and_flags_a_trend():
+    rng = np.random.default_rng(2)
+    stationary = -20.0 + 0.1 * rng.normal(size=40)
+    y = np.concatenate([np.linspace(-5.0, -19.0, 6), stationary])
+    mean, se, d, trend = mser_stats(y)
+    assert d >= 5 and mean == pytest.approx(-20.0, abs=0.05)
+    assert se == pytest.approx(0.1 / math.sqrt(len(y) - d), rel=0.5) and trend < 3.0
+    drifting = -20.0 + 0.02 * np.arange(40) + 0.01 * rng.normal(size=40)
+    assert mser_stats(drifting)[3] > 3.0
+
+
+# --------------------------------------------------------------------------- linear
+
+
+def test_a_start_already_in_the_linear_tail_simulates_nothing():
+    p = cell(gamma_r=4.1, coupling="full", g1=0.3, g2=0.3)
+    r = simulate_point(p)
+    ss = steady_state(assemble(p))
+    assert r.outcome == "linear" and r.periods == 0 and r.steps == 0
+    assert r.transmittance_db == ss.transmittance_db
+    assert r.theta_eff == r.theta_eff_slope == ss.theta_eff
+    assert r.response_period == 1 and r.impacts_per_period == (0.0, 0.0)
+    lam = np.linalg.eigvals(assemble(p).state_matrix())
+    assert r.floquet_multiplier == pytest.approx(math.exp(lam.real.max() * 2 * math.pi / 4.1))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_impacts_that_die_out_end_in_the_exact_closed_form(method):
+    # Figure-5 cell at γ_r 3.37: the transient from rest hits the stops, the steady state
+    # does not (its tip amplitude is 73 % of the gap)
+    p = cell(gamma_r=3.37)
+    r = simulate_point(p, SolverSettings(method=method))
+    assert r.outcome == "linear" and r.contact_steps > 0 and r.periods > 0
+    assert r.transmittance_db == steady_state(assemble(p)).transmittance_db
+    assert r.theta_eff == pytest.approx(r.theta_eff_slope, abs=1e-12)
+
+
+def test_the_linear_proof_is_rigorous_about_what_lies_ahead():
+    # At rest the bound is not enough by itself; the proof searches the transient exactly.
+    p = cell(gamma_r=5.7)
+    tail = linear_tail(assemble(p))
+    x0 = np.zeros(2 * assemble(p).ndof)
+    assert tail.amp + np.abs(tail.L @ (x0 - tail.xp0)).sum() > tail.gate
+    T = 2 * math.pi / p.gamma_r
+    # what the proof claims must agree with simulating the transient event by event, on
+    # both sides of the gap at which impacts start
+    claims = []
+    for gap in (0.1, 0.2, 0.5, 1.0):
+        q = cell(gamma_r=5.7, g1=gap, g2=gap)
+        proven = linear_tail(assemble(q)).proves(x0, 200 * T)
+        r = simulate_point(q, SolverSettings(early_stop=False, max_periods=60))
+        assert proven == (r.contact_steps == 0), gap
+        claims.append(proven)
+    assert True in claims and False in claims
+
+
+# --------------------------------------------------------------------------- periodic
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_extrapolated_orbits_are_the_orbits_a_long_run_reaches(method):
+    p = cell(gamma_r=2.05)
+    fast = simulate_point(p, SolverSettings(method=method))
+    plain = simulate_point(p, SolverSettings(method=method, extrapolate=False))
+    long = simulate_point(p, SolverSettings(method=method, early_stop=False, max_periods=600))
+    assert fast.outcome == plain.outcome == long.outcome == "periodic"
+    assert fast.response_period == plain.response_period == long.response_period == 1
+    assert fast.transmittance_db == pytest.approx(long.transmittance_db, abs=1e-8)
+    assert plain.transmittance_db == pytest.approx(long.transmittance_db, abs=1e-7)
+    assert fast.impacts_per_period == long.impacts_per_period == (2.0, 2.0)
+    assert fast.periods < plain.periods
+    assert 0.0 < fast.floquet_multiplier < 1.0
+
+
+@pytest.mark.parametrize(("gamma_r", "period"), [(0.7, 2), (0.6, 3), (2.5, 4)])
+def test_a_subharmonic_orbit_is_reported_with_its_smallest_period(gamma_r, period):
+    p = cell(gamma_r=gamma_r, coupling="full")
+    r = simulate_point(p)
+    # a long run measured over its last window (a whole number of orbit periods)
+    long = simulate_point(p, SolverSettings(early_stop=False, max_periods=1200, window=12))
+    assert r.outcome == "periodic" and r.response_period == period
+    assert r.transmittance_db == pytest.approx(long.transmittance_db, abs=1e-7)
+    # whole impacts over the orbit's periods
+    assert (period * np.array(r.impacts_per_period) % 1 == 0).all()
+
+
+# --------------------------------------------------------------------------- irregular
+
+
+@pytest.fixture(scope="module")
+def irregular():
+    p = cell(gamma_r=2.2, theta=1.0, xi=0.02, g1=0.5, g2=0.5)
+    return p, simulate_point(p)
+
+
+def test_irregular_points_report_a_converged_mean_and_its_standard_error(irregular):
+    p, r = irregular
+    assert r.outcome == "irregular" and r.response_period == 0 and not r.failed
+    assert 0.0 < r.transmittance_db_se <= 0.1
+    assert r.periods >= 250  # a quarter of the budget before any irregular claim
+    assert sum(r.impacts_per_period) > 0
+    assert r.floquet_multiplier is None
+    assert math.isfinite(r.theta_eff) and math.isfinite(r.theta_eff_slope)
+
+
+@pytest.mark.slow
+def test_irregular_means_agree_with_a_ten_times_longer_run(irregular):
+    p, r = irregular
+    longer = simulate_point(p, SolverSettings(max_periods=10 * r.periods, stat_tol_db=1e-3))
+    # the longer run's own error is small; the reported one must cover the difference
+    assert abs(longer.transmittance_db - r.transmittance_db) <= 3 * r.transmittance_db_se
+
+
+def test_a_budget_too_short_for_the_statistics_is_unsettled_not_irregular(irregular):
+    p, _ = irregular
+    r = simulate_point(p, SolverSettings(max_periods=60, window=10))
+    assert r.outcome == "unsettled" and not r.failed
+    assert "budget of 60 periods ran out" in r.reason
+    assert math.isfinite(r.transmittance_db) and r.periods == 60
+
+
+def test_chaos_beside_an_admissible_linear_response_is_labelled_as_possibly_transient():
+    # θ 1, ξ 0.02, gap 0.5, γ_r 5.25: impacts die out after hundreds to thousands of periods
+    # depending on round-off; whatever a method reports, it is never a bare irregular number
+    p = cell(gamma_r=5.25, theta=1.0, xi=0.02, g1=0.5, g2=0.5)
+    lin = steady_state(assemble(p)).transmittance_db
+    for method in METHODS:
+        r = simulate_point(p, SolverSettings(method=method))
+        if r.outcome == "linear":
+            assert r.transmittance_db == lin
+        else:
+            assert r.outcome in ("irregular", "unsettled")
+            assert "may be transient" in r.reason or "ran out" in r.reason
+
+
+# --------------------------------------------------------------------------- failed
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("gamma_r", [0.85, 2.0])
+def test_divergence_is_a_failure_for_every_method(method, gamma_r):
+    # the published coupling is not passive: at θ = 500 impacts pump energy in without bound
+    r = simulate_point(cell(gamma_r=gamma_r, theta=500.0), SolverSettings(method=method))
+    assert r.outcome == "failed" and "diverged" in r.reason
+    assert r.transmittance_db is None and r.periods < 200
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_undamped_cells_have_no_steady_state(method):
+    s = SolverSettings(method=method, max_periods=200)
+    resonant = simulate_point(cell(gamma_r=1.0, xi=0.0, g1=1e6, g2=1e6), s)
+    assert resonant.outcome == "failed" and "undamped resonance" in resonant.reason
+    free = simulate_point(cell(gamma_r=1.3, xi=0.0, g1=1e6, g2=1e6), s)
+    assert free.outcome == "failed" and "never decays" in free.reason
+
+
+def test_failed_records_hold_no_number_and_no_nan():
+    r = simulate_point(cell(gamma_r=0.85, theta=500.0))
+    d = r.as_dict()
+    assert d["failed"] and d["outcome"] == "failed"
+    for key in ("transmittance_db", "transmittance_db_se", "amplitude", "theta_eff",
+                "theta_eff_slope", "impacts_per_period", "floquet_multiplier"):  # fmt: skip
+        assert d[key] is None
+    assert all(not (isinstance(v, float) and not math.isfinite(v)) for v in d.values())

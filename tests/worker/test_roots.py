@@ -1,0 +1,155 @@
+"""The event solver's root finder against a slow, obviously correct reference.
+
+``f(t) = off + Re Σ_k c_k e^{λ_k t}`` with random coefficients and decaying or oscillating
+exponents; the reference samples f densely and bisects the first sign change.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from worker.solvers.event.roots import (
+    STACK,
+    STACK_COLS,
+    clear_whole,
+    first_root,
+    phi1,
+    refine,
+    skip_start,
+)
+
+
+def f_ref(c: np.ndarray, lam: np.ndarray, off: float, t: np.ndarray) -> np.ndarray:
+    """The sum, evaluated the obvious way."""
+    return off + np.real(np.exp(np.outer(t, lam)) @ c)
+
+
+def first_root_ref(c, lam, off, t0, t1, samples=200_001) -> tuple[float | None, float]:
+    """First sign change on a dense grid, refined by bisection; (root or None, min f)."""
+    t = np.linspace(t0, t1, samples)
+    f = f_ref(c, lam, off, t)
+    bad = np.flatnonzero(f <= 0.0)
+    if bad.size == 0:
+        return None, float(f.min())
+    i = int(bad[0])
+    if i == 0:
+        return t0, float(f.min())
+    a, b = t[i - 1], t[i]
+    for _ in range(80):
+        m = 0.5 * (a + b)
+        if f_ref(c, lam, off, np.array([m]))[0] > 0.0:
+            a = m
+        else:
+            b = m
+    return 0.5 * (a + b), float(f.min())
+
+
+def random_sum(rng: np.random.Generator, m: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """A real sum: conjugate pairs kept once with a doubled coefficient (the reduced form)."""
+    lam = -rng.uniform(0.0, 0.5, m) + 1j * rng.uniform(0.2, 8.0, m)
+    c = 2.0 * (rng.normal(size=m) + 1j * rng.normal(size=m)) * np.exp(-rng.uniform(0, 3, m))
+    off = float(rng.uniform(0.2, 2.5))
+    return np.ascontiguousarray(c), np.ascontiguousarray(lam), off
+
+
+def call_first_root(c, lam, off, t0, t1, tol=1e-13):
+    stack = np.zeros((STACK, STACK_COLS))
+    w4 = np.zeros(len(c))
+    return first_root(c, lam, len(c), off, t0, t1, tol, stack, w4)
+
+
+def test_first_root_agrees_with_dense_sampling_on_random_sums():
+    rng = np.random.default_rng(20261122)
+    decided = with_root = 0
+    for _ in range(300):
+        c, lam, off = random_sum(rng, int(rng.integers(1, 6)))
+        t1 = float(rng.uniform(0.5, 6.0))
+        ref, fmin = first_root_ref(c, lam, off, 0.0, t1)
+        got = call_first_root(c, lam, off, 0.0, t1)
+        scale = off + np.abs(c).sum()
+        if ref is None and fmin > 1e-6 * scale:
+            assert got < 0.0, (c, lam, off, t1)
+            decided += 1
+        elif ref is not None:
+            # a root the dense grid sees: the finder returns the first one (or an earlier touch
+            # between samples, never a later root)
+            assert got >= 0.0 and got <= ref + 1e-9, (got, ref)
+            assert f_ref(c, lam, off, np.array([got]))[0] <= 1e-9 * scale
+            if abs(got - ref) > 1e-9:  # an earlier touch the grid missed: f must reach 0 there
+                assert got < ref
+            decided += 1
+            with_root += 1
+    assert decided >= 290 and 60 <= with_root <= 240  # both kinds were really exercised
+
+
+def test_reduced_and_full_conjugate_forms_give_the_same_roots():
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        c, lam, off = random_sum(rng, 3)
+        full_c = np.concatenate([c / 2, np.conj(c) / 2])
+        full_lam = np.concatenate([lam, np.conj(lam)])
+        a = call_first_root(c, lam, off, 0.0, 4.0)
+        b = call_first_root(full_c, full_lam, off, 0.0, 4.0)
+        assert a == pytest.approx(b, abs=1e-11)
+
+
+def test_grazing_dip_between_coarse_samples_is_found():
+    # f = off + cos t dips to off - 1 at t = π: with off = 1 - 1e-10 it is negative only in a
+    # window of width ~3e-5 around π, invisible to the endpoint values of [0, 5]
+    off = 1.0 - 1e-10
+    c = np.array([1.0 + 0j])
+    lam = np.array([1j])
+    t = call_first_root(c, lam, off, 0.0, 5.0)
+    assert t == pytest.approx(math.pi - math.sqrt(2e-10), abs=1e-9)
+    # just clear of zero: proven clear
+    assert call_first_root(c, lam, 1.0 + 1e-6, 0.0, 5.0) < 0.0
+
+
+def test_refine_reaches_the_root_to_the_tolerance():
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        c, lam, off = random_sum(rng, 2)
+        ref, _ = first_root_ref(c, lam, off, 0.0, 3.0, samples=20_001)
+        if ref is None or ref == 0.0:
+            continue
+        lo, hi = ref - 1e-3, ref + 1e-3
+        flo = f_ref(c, lam, off, np.array([lo]))[0]
+        fhi = f_ref(c, lam, off, np.array([hi]))[0]
+        if not (flo > 0.0 >= fhi):
+            continue
+        t = refine(c, lam, len(c), off, lo, hi, flo, fhi, 1e-14)
+        assert t == pytest.approx(ref, abs=1e-11)
+
+
+def test_clear_whole_never_claims_a_piece_with_a_root():
+    rng = np.random.default_rng(3)
+    claimed = 0
+    for _ in range(400):
+        c, lam, off = random_sum(rng, 3)
+        ln = float(rng.uniform(0.01, 0.5))
+        E = np.exp(lam * ln)
+        if clear_whole(c, lam, E, len(c), off, ln):
+            claimed += 1
+            assert f_ref(c, lam, off, np.linspace(0.0, ln, 2001)).min() > 0.0
+    assert claimed > 100
+
+
+def test_skip_start_finds_where_the_gap_opens():
+    # f = 1 - cos t grows like t²/2 from zero: clearly positive (> 1e-12 of its scale) only
+    # once t² > 4e-12
+    c = np.array([-1.0 + 0j])
+    lam = np.array([1j])
+    t = skip_start(c, lam, 1, 1.0, 1.0)
+    assert t > 0 and (1.0 - math.cos(t)) > 2e-12 and t / 8.0 < 3e-6
+
+
+@pytest.mark.parametrize("x", [0.0, 1e-9, 1e-4 + 2e-4j, 0.5 - 3j, -7.0])
+def test_phi1_is_the_integral_of_the_exponential(x):
+    ln = 0.7
+    t = np.linspace(0.0, ln, 200_001)
+    integrand = np.exp(x * t)
+    ref = np.sum((integrand[1:] + integrand[:-1]) / 2) * (t[1] - t[0])
+    assert phi1(complex(x), ln) == pytest.approx(ref, rel=1e-9, abs=1e-12)
