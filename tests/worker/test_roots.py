@@ -153,3 +153,27 @@ def test_phi1_is_the_integral_of_the_exponential(x):
     integrand = np.exp(x * t)
     ref = np.sum((integrand[1:] + integrand[:-1]) / 2) * (t[1] - t[0])
     assert phi1(complex(x), ln) == pytest.approx(ref, rel=1e-9, abs=1e-12)
+
+
+def test_stiff_modes_are_bounded_by_their_size_and_roots_still_found():
+    # a slow sum plus one mode turning ~100 cycles over the interval: the Hermite bound of the
+    # whole sum is useless, the split search still proves clear pieces and finds the roots
+    rng = np.random.default_rng(17)
+    decided = with_root = 0
+    for _ in range(60):
+        c, lam, off = random_sum(rng, 2)
+        c = np.append(c, 2e-3 * (rng.normal() + 1j * rng.normal()))
+        lam = np.append(lam, -rng.uniform(0.0, 2.0) + 1j * rng.uniform(150.0, 250.0))
+        t1 = float(rng.uniform(2.0, 4.0))
+        ref, fmin = first_root_ref(c, lam, off, 0.0, t1, samples=400_001)
+        got = call_first_root(c, lam, off, 0.0, t1)
+        scale = off + np.abs(c).sum()
+        if ref is None and fmin > 1e-6 * scale:
+            assert got < 0.0
+            decided += 1
+        elif ref is not None:
+            assert 0.0 <= got <= ref + 1e-9
+            assert f_ref(c, lam, off, np.array([got]))[0] <= 1e-9 * scale
+            decided += 1
+            with_root += 1
+    assert decided >= 55 and 5 <= with_root <= 55

@@ -167,18 +167,18 @@ def _log_event(evlog, kst, tau, kind, stop, resid, impulse):
 
 
 @njit(cache=True, nogil=True)
-def _phase_add(rows, k, q, zr, zi, ph):
+def _phase_rot(zr, zi, ph):
+    """e^{-i ph}·(zr + i zi) as (re, im)."""
     rc = math.cos(ph)
     rs = -math.sin(ph)
-    rows[k, ms.M_S_RE + 2 * q] += zr * rc - zi * rs
-    rows[k, ms.M_S_IM + 2 * q] += zr * rs + zi * rc
+    return zr * rc - zi * rs, zr * rs + zi * rc
 
 
 @njit(cache=True, nogil=True)
-def _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw,
-                      tol_t):  # fmt: skip
-    """Measure a whole sub-grid interval taken by the cheap test (y → ye = Φ y): exact
-    extremum, exact harmonics, Gauss nodes for the phase portrait."""
+def _measure_interval(r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, tol_t):
+    """Measure a whole sub-grid interval (y → ye = Φ y): exact extremum, exact harmonics,
+    Gauss nodes for the phase portrait. Returns (lo, hi, s re, s im, s_b re, s_b im, ∫ṡ²,
+    ∫ṡ_b ṡ)."""
     s0 = _row(R, r, R_S, y, nz)
     sd0 = _row(R, r, R_SD, y, nz)
     s1 = _row(R, r, R_S, ye, nz)
@@ -190,14 +190,17 @@ def _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk
         sc = _extremum(r, a, nk[r], lam, RV, h, sd0, sd1, tol_t, cw)
         lo = min(lo, sc)
         hi = max(hi, sc)
-    ms.add_extrema(rows, k, lo, hi)
-    for q in range(2):
-        zr = 0.0
-        zi = 0.0
-        for i in range(nz):
-            zr += psi[r, q, i].real * y[i]
-            zi += psi[r, q, i].imag * y[i]
-        _phase_add(rows, k, q, zr, zi, ph0)
+    z0r = 0.0
+    z0i = 0.0
+    z1r = 0.0
+    z1i = 0.0
+    for i in range(nz):
+        z0r += psi[r, 0, i].real * y[i]
+        z0i += psi[r, 0, i].imag * y[i]
+        z1r += psi[r, 1, i].real * y[i]
+        z1i += psi[r, 1, i].imag * y[i]
+    a0, a1 = _phase_rot(z0r, z0i, ph0)
+    b0, b1 = _phase_rot(z1r, z1i, ph0)
     vv = 0.0
     vb = 0.0
     for j in range(4):
@@ -208,8 +211,7 @@ def _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk
             b += gl[r, j, 1, i] * y[i]
         vv += ms.GL_WEIGHTS[j] * v * v
         vb += ms.GL_WEIGHTS[j] * b * v
-    rows[k, ms.M_VV] += h * vv
-    rows[k, ms.M_VB] += h * vb
+    return lo, hi, a0, a1, b0, b1, h * vv, h * vb
 
 
 @njit(cache=True, nogil=True)
@@ -234,14 +236,15 @@ def _phi_shift(E, lam, shift, ln, es):
 
 
 @njit(cache=True, nogil=True)
-def _measure_piece(rows, k, r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r,
-                   measure, tol_t, cw):  # fmt: skip
-    """Measure an exactly propagated piece of length ln: modal coefficients a at its start,
-    E = e^{λ ln} of the kept modes."""
-    if ln <= 0.0:
-        return
+def _measure_piece(r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r, measure, tol_t,
+                   cw):  # fmt: skip
+    """Measure an exactly propagated piece of length ln (modal coefficients a at its start,
+    E = e^{λ ln} of the kept modes). Returns what :func:`_measure_interval` returns; without
+    ``measure`` only the range of s (from the Hermite interpolant) and zeros."""
     lo = min(s0, s1)
     hi = max(s0, s1)
+    if ln <= 0.0:
+        return lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if sd0 * sd1 < 0.0:
         if measure:
             sc = _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw)
@@ -249,24 +252,26 @@ def _measure_piece(rows, k, r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, 
             hi = max(hi, sc)
         else:
             lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, ln)
-    ms.add_extrema(rows, k, lo, hi)
     if not measure:
-        return
+        return lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     shift = -1j * gamma_r
     es = cmath.exp(shift * ln)
-    for q in range(2):
-        row = R_S if q == 0 else R_SB
-        acc = 0.0 + 0.0j
-        for m in range(nk):
-            c = RV[r, row, m] * a[m]
-            lm = lam[r, m]
-            if wt[r, m] == 2.0:  # the pair (λ, λ̄) of a real sum: both terms of ∫ Re(·) e^{-iγt}
-                acc += 0.5 * (c * _phi_shift(E[m], lm, shift, ln, es)
-                              + c.conjugate() * _phi_shift(E[m].conjugate(), lm.conjugate(),
-                                                           shift, ln, es))  # fmt: skip
-            else:
-                acc += c * _phi_shift(E[m], lm, shift, ln, es)
-        _phase_add(rows, k, q, acc.real, acc.imag, ph)
+    acc0 = 0.0 + 0.0j
+    acc1 = 0.0 + 0.0j
+    for m in range(nk):
+        lm = lam[r, m]
+        p = _phi_shift(E[m], lm, shift, ln, es)
+        if wt[r, m] == 2.0:  # the pair (λ, λ̄) of a real sum: both terms of ∫ Re(·) e^{-iγt}
+            pc = _phi_shift(E[m].conjugate(), lm.conjugate(), shift, ln, es)
+            c = RV[r, R_S, m] * a[m]
+            acc0 += 0.5 * (c * p + c.conjugate() * pc)
+            c = RV[r, R_SB, m] * a[m]
+            acc1 += 0.5 * (c * p + c.conjugate() * pc)
+        else:
+            acc0 += RV[r, R_S, m] * a[m] * p
+            acc1 += RV[r, R_SB, m] * a[m] * p
+    a0, a1 = _phase_rot(acc0.real, acc0.imag, ph)
+    b0, b1 = _phase_rot(acc1.real, acc1.imag, ph)
     vv = 0.0
     vb = 0.0
     for j in range(4):
@@ -279,47 +284,44 @@ def _measure_piece(rows, k, r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, 
             b += (RV[r, R_SBD, m] * e).real
         vv += ms.GL_WEIGHTS[j] * v * v
         vb += ms.GL_WEIGHTS[j] * b * v
-    rows[k, ms.M_VV] += ln * vv
-    rows[k, ms.M_VB] += ln * vb
+    return lo, hi, a0, a1, b0, b1, ln * vv, ln * vb
 
 
 @njit(cache=True, nogil=True)
-def _opened(kst, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
-    """End the contact episode once the gap of its stop has opened to ``OPEN_FRAC`` of the
-    clearance over a free piece (exact maximum of the gap)."""
-    k = int(kst[ms.K_CONTACT])
-    sgn = -1.0 if k == 1 else 1.0
-    gk = g1 if k == 1 else g2
+def _opened(contact, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
+    """The contact episode state after a free piece: it ends once the gap of its stop has
+    opened to ``OPEN_FRAC`` of the clearance (exact maximum of the gap over the piece)."""
+    sgn = -1.0 if contact == 1 else 1.0
+    gk = g1 if contact == 1 else g2
     thr = ms.OPEN_FRAC * gk
     f0 = gk + sgn * _row(R, 0, R_W, y, nz)
     d0 = sgn * _row(R, 0, R_WD, y, nz)
     f1 = gk + sgn * _row(R, 0, R_W, ye, nz)
     d1 = sgn * _row(R, 0, R_WD, ye, nz)
     if f0 > thr or f1 > thr:
-        kst[ms.K_CONTACT] = 0.0
-        return
+        return 0
     _, _, fmax, tmax = ms.cubic_minmax(f0, d0, f1, d1, ln)
     if fmax <= 0.5 * thr:
-        return
+        return contact
     if not have_a:
         _modal(Vi, 0, y, nk[0], nz, a)
     _coef(RV, 0, R_W, a, nk[0], sgn, cw)
     tc = rt.crit(cw, lam[0], nk[0], 0.0, ln, d0, d1, tmax)
     fc, _ = rt.ev(cw, lam[0], nk[0], gk, tc)
-    if fc > thr:
-        kst[ms.K_CONTACT] = 0.0
+    return 0 if fc > thr else contact
 
 
 # ----------------------------------------------------------------------------- events
 
 
 @njit(cache=True, nogil=True)
-def stick_or_leave(y, kst, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, ye, x,
-                   x2, a, cw):  # fmt: skip
+def stick_or_leave(y, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, ye, x, x2, a,
+                   cw):  # fmt: skip
     """After an impact at stop k: stick if the contact force is compressive (or zero and
     growing), else leave. A departure whose gap never opens above round-off within an interval
     (the force turns compressive again at once) is taken as stuck, and vice versa. Returns
-    False if neither works (the impact is then repeated, bounded by the event budget)."""
+    (ok, regime, skip_on, skip_stop, skip_rem); ok is False if neither works (the impact is
+    then repeated, bounded by the event budget)."""
     nzm = 2 * N + 2
     nx = 2 * N
     kk = 1 if bilateral else k
@@ -338,22 +340,21 @@ def stick_or_leave(y, kst, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g
     for _attempt in range(2):
         if stick:
             ok = False
+            skip_on = False
+            ts = 0.0
             if bilateral or lk > eps:
-                kst[K_SKIP_ON] = 0.0
                 ok = True
             else:
                 _modal(Vi, kk, ye, nk[kk], nzm - 1, a)
                 _coef(RV, kk, R_MU, a, nk[kk], sgn, cw)
                 ts = rt.skip_start(cw, lam[kk], nk[kk], 0.0, h)
                 if ts >= 0.0:
-                    kst[K_SKIP_ON] = 1.0
-                    kst[K_SKIP_REM] = ts
+                    skip_on = True
                     ok = True
             if ok:
                 for i in range(nzm):
                     y[i] = ye[i]
-                kst[K_REGIME] = kk
-                return True
+                return True, kk, skip_on, 0, ts
         else:
             full_state(kk, ye, Qout, N, x)
             for i in range(nx):
@@ -366,22 +367,18 @@ def stick_or_leave(y, kst, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g
             if ts >= 0.0:
                 for i in range(nzm):
                     y[i] = x2[i]
-                kst[K_REGIME] = 0.0
-                kst[K_SKIP_ON] = 1.0
-                kst[K_SKIP_STOP] = k
-                kst[K_SKIP_REM] = ts
-                return True
+                return True, 0, True, k, ts
         stick = not stick
-    return False
+    return False, 0, False, 0, 0.0
 
 
 @njit(cache=True, nogil=True)
-def release(y, kst, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw):
-    """Leave stuck regime r where the contact force reached zero: back to free flight, with the
-    search for that stop starting once the gap has opened."""
+def release(y, k, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw):
+    """Leave stuck regime k where the contact force reached zero: back to free flight, with the
+    search for that stop starting once the gap has opened. Returns (pending, skip_on,
+    skip_stop, skip_rem)."""
     nzm = 2 * N + 2
     nx = 2 * N
-    k = int(kst[K_REGIME])
     full_state(k, y, Qout, N, x)
     osc_c = y[nzm - 4]
     osc_s = y[nzm - 3]
@@ -389,19 +386,25 @@ def release(y, kst, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw):
         y[i] = x[i]
     y[nx] = osc_c
     y[nx + 1] = osc_s
-    kst[K_REGIME] = 0.0
     _modal(Vi, 0, y, nk[0], nzm, a)
     _coef(RV, 0, R_W, a, nk[0], -1.0 if k == 1 else 1.0, cw)
     ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h)
     if ts < 0.0:
-        kst[K_PENDING] = k
-    else:
-        kst[K_SKIP_ON] = 1.0
-        kst[K_SKIP_STOP] = k
-        kst[K_SKIP_REM] = ts
+        return k, False, 0, 0.0
+    return 0, True, k, ts
 
 
 # ----------------------------------------------------------------------------- the kernel
+
+
+@njit(cache=True, nogil=True)
+def _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact):
+    kst[K_REGIME] = r
+    kst[K_SKIP_ON] = 1.0 if skip_on else 0.0
+    kst[K_SKIP_STOP] = skip_stop
+    kst[K_SKIP_REM] = skip_rem
+    kst[K_PENDING] = pending
+    kst[ms.K_CONTACT] = contact
 
 
 @njit(cache=True, nogil=True)
@@ -411,27 +414,38 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                  lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, a, c1, c2, cw, Ew,
                  x2, stack, w4):  # fmt: skip
     """Advance the regime state ``y`` (and its full state ``x``) by up to ``n_periods``
-    periods; returns (periods done, END code, period found)."""
+    periods; returns (periods done, END code, period found).
+
+    The kernel's own state (regime, pending events, the late start of a search after a
+    release, the contact episode) and the period's measurements live in local variables, stored
+    to ``kst`` and ``rows`` only at period ends: stores inside the loop would make the compiler
+    reload ``y`` and the matrices after each (measured: 2× slower free flight)."""
     nzm = 2 * N + 2
     nx = 2 * N
     T = 2.0 * math.pi / gamma_r
     h = T / n_grid
     tol_t = event_tol * T
+    r = int(kst[K_REGIME])
+    skip_on = kst[K_SKIP_ON] != 0.0
+    skip_stop = int(kst[K_SKIP_STOP])
+    skip_rem = kst[K_SKIP_REM]
+    pending = int(kst[K_PENDING])
+    contact = int(kst[ms.K_CONTACT])
+    record = hist.shape[0] > 0
     for k in range(n_periods):
         ms.begin_row(rows, k)
         period = kst[ms.K_PERIOD]
         ev_period = 0
         failed = ms.END_NONE
-        # kept in registers over the period (stores inside the loop cost the loads of y)
-        smin_q = np.inf
-        smax_q = -np.inf
-        nsteps = 0.0
-        ncoarse = 0.0
+        smin = np.inf
+        smax = -np.inf
+        h0 = h1 = h2 = h3 = vv = vb = 0.0
+        nsteps = ncoarse = nimpacts = imp1 = imp2 = peak = 0.0
+        last = -1.0
         for j in range(n_grid):
             t = 0.0
             ph0 = 2.0 * math.pi * j / n_grid
             while True:
-                r = int(kst[K_REGIME])
                 nz = nzr[r]
                 nkr = nk[r]
                 big = 0.0
@@ -443,13 +457,11 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if big > MAX_STATE:
                     failed = ms.END_DIVERGED if math.isfinite(big) else ms.END_NONFINITE
                     break
-                pending = int(kst[K_PENDING])
                 tau_now = period * T + j * h + t
                 imp_l = 0.0
                 if pending > 0:
                     # impact at the current time (the tip did not leave a stop it was released
                     # from, or the run starts on a stop)
-                    kst[K_PENDING] = 0.0
                     ev_period += 1
                     if ev_period > max_events_pp:
                         failed = ms.END_CHATTER
@@ -463,27 +475,40 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     for i in range(N):
                         y[N + i] += MinvX[i] * P
                     imp_l = abs(P)
-                    rows[k, ms.M_CONTACT] += 1.0
-                    ms.add_impulses(rows, kst, k, imp_l if kk == 1 else 0.0,
-                                    imp_l if kk == 2 else 0.0, (j * h + t) / T)  # fmt: skip
-                    _log_event(evlog, kst, tau_now, 1.0, kk, resid, imp_l)
+                    nimpacts += 1.0
+                    if contact != kk:
+                        if kk == 1:
+                            imp1 += 1.0
+                        else:
+                            imp2 += 1.0
+                        last = (j * h + t) / T
+                    peak = max(peak, imp_l)
+                    contact = kk
+                    if record:
+                        _log_event(evlog, kst, tau_now, 1.0, kk, resid, imp_l)
                     pending = -kk
                 if pending < 0:
-                    kst[K_PENDING] = 0.0
                     kk = -pending
-                    if stick_or_leave(y, kst, kk, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N,
-                                      g1, g2, h, ye, x, x2, a, cw):  # fmt: skip
-                        rn = int(kst[K_REGIME])
-                        _record(hist, xh, kst, tau_now, R, rn, y, nzr[rn],
-                                imp_l if kk == 1 else 0.0, imp_l if kk == 2 else 0.0, kk, Qout,
-                                N, x)  # fmt: skip
+                    pending = 0
+                    ok, rn, so, ss, sr = stick_or_leave(y, kk, bilateral, Pin, Qout, R, RV, Vi,
+                                                        lam, nk, N, g1, g2, h, ye, x, x2, a,
+                                                        cw)  # fmt: skip
+                    if ok:
+                        r = rn
+                        skip_on = so
+                        if so and rn == 0:
+                            skip_stop = ss
+                        skip_rem = sr
+                        if record:
+                            _record(hist, xh, kst, tau_now, R, r, y, nzr[r],
+                                    imp_l if kk == 1 else 0.0, imp_l if kk == 2 else 0.0, kk,
+                                    Qout, N, x)  # fmt: skip
                     else:
-                        kst[K_PENDING] = kk  # neither sticks nor leaves: impact again
+                        pending = kk  # neither sticks nor leaves: impact again
                     continue
                 ln = h - t
                 if ln <= 1e-13 * h:
                     break
-                skip_on = kst[K_SKIP_ON] != 0.0
                 # ---- the cheap test on a whole interval
                 have_ye = False
                 if t == 0.0 and not skip_on:
@@ -521,8 +546,15 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         quick = lmin - bnd > margin * max(l0, l1)
                     if quick:
                         if measure:
-                            _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV,
-                                              lam, nk, a, cw, tol_t)  # fmt: skip
+                            lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_interval(
+                                r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, tol_t
+                            )
+                            h0 += d0_
+                            h1 += d1_
+                            h2 += d2_
+                            h3 += d3_
+                            vv += dv
+                            vb += db
                         else:
                             s0 = _row(R, r, R_S, y, nz)
                             s1 = _row(R, r, R_S, ye, nz)
@@ -532,21 +564,22 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             sd1 = _row(R, r, R_SD, ye, nz)
                             if sd0 * sd1 < 0.0:
                                 lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, h)
-                            smax_q = max(smax_q, hi)
-                            smin_q = min(smin_q, lo)
+                        smax = max(smax, hi)
+                        smin = min(smin, lo)
                         il = 0.0
-                        if hist.shape[0] > 0 and r != 0:
+                        if record and r != 0:
                             _modal(Vi, r, y, nkr, nz, a)
                             _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
                             for kq in range(nkr):
                                 il += (cw[kq] * rt.phi1(lam[r, kq], h)).real
-                        if r == 0 and kst[ms.K_CONTACT] != 0.0:
-                            _opened(kst, y, ye, h, R, RV, Vi, lam, nk, nz, g1, g2, a, False, cw)
+                        if r == 0 and contact != 0:
+                            contact = _opened(contact, y, ye, h, R, RV, Vi, lam, nk, nz, g1, g2,
+                                              a, False, cw)  # fmt: skip
                         for i in range(nz):
                             y[i] = ye[i]
                         nsteps += 1.0
                         ncoarse += 1.0
-                        if hist.shape[0] > 0:
+                        if record:
                             _record(hist, xh, kst, period * T + (j + 1) * h, R, r, y, nz,
                                     il if r == 1 else 0.0, il if r == 2 else 0.0, 0.0, Qout, N,
                                     x)  # fmt: skip
@@ -570,10 +603,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         cc = c1 if kk == 1 else c2
                         _coef(RV, 0, R_W, a, nkr, -1.0 if kk == 1 else 1.0, cc)
                         ts = 0.0
-                        if skip_on and kst[K_SKIP_STOP] == kk:
-                            if kst[K_SKIP_REM] >= ln:
+                        if skip_on and skip_stop == kk:
+                            if skip_rem >= ln:
                                 continue
-                            ts = kst[K_SKIP_REM]
+                            ts = skip_rem
                         lim = ln if t_ev < 0.0 else t_ev
                         if ts >= lim:
                             continue
@@ -586,7 +619,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 elif not bilateral:
                     sgn = -1.0 if r == 1 else 1.0
                     _coef(RV, r, R_MU, a, nkr, sgn, c1)
-                    ts = kst[K_SKIP_REM] if skip_on else 0.0
+                    ts = skip_rem if skip_on else 0.0
                     if ts < ln and not (ts == 0.0 and rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln)):
                         te = rt.first_root(c1, lam[r], nkr, 0.0, ts, ln, tol_t, stack, w4)
                         if te >= 0.0:
@@ -601,67 +634,98 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     _state_E(V, r, a, Ew, nkr, nz, ye)
                 if measure and t == 0.0 and t_ev < 0.0:
                     # a whole interval after all: its precomputed rows measure it
-                    _measure_interval(rows, k, r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam,
-                                      nk, a, cw, tol_t)  # fmt: skip
+                    lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_interval(
+                        r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, tol_t
+                    )
                 else:
-                    _measure_piece(rows, k, r, a, nkr, lam, RV, wt, Ew, lp,
-                                   _row(R, r, R_S, y, nz), _row(R, r, R_SD, y, nz),
-                                   _row(R, r, R_S, ye, nz), _row(R, r, R_SD, ye, nz),
-                                   ph0 + gamma_r * t, gamma_r, measure, tol_t, cw)  # fmt: skip
+                    lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_piece(
+                        r, a, nkr, lam, RV, wt, Ew, lp, _row(R, r, R_S, y, nz),
+                        _row(R, r, R_SD, y, nz), _row(R, r, R_S, ye, nz),
+                        _row(R, r, R_SD, ye, nz), ph0 + gamma_r * t, gamma_r, measure, tol_t, cw,
+                    )  # fmt: skip
+                smax = max(smax, hi)
+                smin = min(smin, lo)
+                h0 += d0_
+                h1 += d1_
+                h2 += d2_
+                h3 += d3_
+                vv += dv
+                vb += db
                 il = 0.0
-                if hist.shape[0] > 0 and r != 0:
+                if record and r != 0:
                     _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
                     for kq in range(nkr):
                         il += (cw[kq] * rt.phi1(lam[r, kq], lp)).real
-                if r == 0 and kst[ms.K_CONTACT] != 0.0:
-                    _opened(kst, y, ye, lp, R, RV, Vi, lam, nk, nz, g1, g2, a, True, cw)
+                if r == 0 and contact != 0:
+                    contact = _opened(contact, y, ye, lp, R, RV, Vi, lam, nk, nz, g1, g2, a,
+                                      True, cw)  # fmt: skip
                 if skip_on:
-                    kst[K_SKIP_REM] -= lp
-                    if kst[K_SKIP_REM] <= 0.0:
-                        kst[K_SKIP_ON] = 0.0
+                    skip_rem -= lp
+                    if skip_rem <= 0.0:
+                        skip_on = False
                 for i in range(nz):
                     y[i] = ye[i]
                 nsteps += 1.0
                 t = h if t_ev < 0.0 else t + lp
                 tau_now = period * T + j * h + t
                 if t_ev < 0.0:
-                    _record(hist, xh, kst, tau_now, R, r, y, nz, il if r == 1 else 0.0,
-                            il if r == 2 else 0.0, 0.0, Qout, N, x)  # fmt: skip
+                    if record:
+                        _record(hist, xh, kst, tau_now, R, r, y, nz, il if r == 1 else 0.0,
+                                il if r == 2 else 0.0, 0.0, Qout, N, x)  # fmt: skip
                     break
                 if kind <= 2:
                     # impact on stop `kind` (applied at the top of the loop)
-                    if lp > 0.0:
+                    if record and lp > 0.0:
                         _record(hist, xh, kst, tau_now, R, r, y, nz, 0.0, 0.0, 0.0, Qout, N, x)
-                    kst[K_PENDING] = kind
+                    pending = kind
                     continue
                 # release from stop r: the contact force reached zero
                 ev_period += 1
                 if ev_period > max_events_pp:
                     failed = ms.END_CHATTER
                     break
-                sgn = -1.0 if r == 1 else 1.0
-                resid = sgn * _row(R, r, R_MU, y, nz) / max(_row_scale(R, r, R_MU, y, nz), 1e-300)
-                _log_event(evlog, kst, tau_now, 2.0, r, resid, 0.0)
-                release(y, kst, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw)
-                _record(hist, xh, kst, tau_now, R, 0, y, nzm, il if r == 1 else 0.0,
-                        il if r == 2 else 0.0, 2.0 + r, Qout, N, x)  # fmt: skip
+                if record:
+                    sgn = -1.0 if r == 1 else 1.0
+                    resid = sgn * _row(R, r, R_MU, y, nz) / max(_row_scale(R, r, R_MU, y, nz),
+                                                                 1e-300)  # fmt: skip
+                    _log_event(evlog, kst, tau_now, 2.0, r, resid, 0.0)
+                rk = r
+                pending, skip_on, ss, skip_rem = release(y, rk, Qout, R, RV, Vi, lam, nk, N, g1,
+                                                         g2, h, x, a, cw)  # fmt: skip
+                if skip_on:
+                    skip_stop = ss
+                r = 0
+                if record:
+                    _record(hist, xh, kst, tau_now, R, 0, y, nzm, il if rk == 1 else 0.0,
+                            il if rk == 2 else 0.0, 2.0 + rk, Qout, N, x)  # fmt: skip
             if failed != ms.END_NONE:
                 break
             # exact forcing phase at the grid point (no drift of the oscillator)
             ang = 2.0 * math.pi * (j + 1) / n_grid
-            ic = 2 * N if kst[K_REGIME] == 0.0 else 2 * N - 2
+            ic = 2 * N if r == 0 else 2 * N - 2
             y[ic] = f_scale * math.cos(ang)
             y[ic + 1] = f_scale * math.sin(ang)
-        ms.add_extrema(rows, k, smin_q, smax_q)
-        rows[k, ms.M_STEPS] += nsteps
-        rows[k, ms.M_COARSE] += ncoarse
-        if failed != ms.END_NONE:
-            kst[ms.K_PERIOD] += 1.0
-            return k + 1, failed, 0
-        kst[ms.K_PERIOD] += 1.0
-        r = int(kst[K_REGIME])
-        full_state(r, y, Qout, N, x)
+        rows[k, ms.M_SMIN] = smin
+        rows[k, ms.M_SMAX] = smax
+        rows[k, ms.M_S_RE] = h0
+        rows[k, ms.M_S_IM] = h1
+        rows[k, ms.M_SB_RE] = h2
+        rows[k, ms.M_SB_IM] = h3
+        rows[k, ms.M_VV] = vv
+        rows[k, ms.M_VB] = vb
+        rows[k, ms.M_IMP1] = imp1
+        rows[k, ms.M_IMP2] = imp2
+        rows[k, ms.M_PEAK] = peak
+        rows[k, ms.M_LAST_IMPACT] = last
+        rows[k, ms.M_STEPS] = nsteps
+        rows[k, ms.M_COARSE] = ncoarse
+        rows[k, ms.M_CONTACT] = nimpacts
         rows[k, ms.M_REGIME] = r
+        _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
+        kst[ms.K_PERIOD] += 1.0
+        if failed != ms.END_NONE:
+            return k + 1, failed, 0
+        full_state(r, y, Qout, N, x)
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
                                 lin_gate, checks, div_limit, tol)  # fmt: skip
         if code != ms.END_NONE:

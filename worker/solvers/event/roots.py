@@ -23,7 +23,8 @@ from numba import njit
 from worker.solvers.measure import cubic_minmax
 
 STACK = 160  # pieces the search may hold (depth ~ 4 per level)
-STACK_COLS = 6  # lo, hi, f and ḟ at both ends
+STACK_COLS = 10  # lo, hi, f and ḟ at both ends, the slow modes' f and ḟ at both ends
+STIFF = 20.0  # |λ|·length beyond which a mode counts as stiff over a search interval
 
 
 @njit(cache=True, nogil=True)
@@ -131,7 +132,24 @@ def crit(c, lam, nz, lo, hi, dlo, dhi, guess):
 def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
     """First t in [t0, t1] where f reaches zero, or -1 if f > 0 throughout (proven).
 
-    ``stack`` (STACK × STACK_COLS) and ``w4`` (>= nz) are scratch arrays."""
+    ``stack`` (STACK × STACK_COLS) and ``w4`` (>= nz) are scratch arrays. Where some mode
+    turns through several cycles over the interval (stiff high modes: its λ⁴ makes the
+    Hermite error bound useless), the search bounds those modes by their size instead."""
+    total = t1 - t0
+    stiff = False
+    for k in range(nz):
+        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
+        if m2 * total * total > STIFF * STIFF and c[k] != 0:
+            stiff = True
+            break
+    if stiff:
+        return _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4)
+    return _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4)
+
+
+@njit(cache=True, nogil=True)
+def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4):
+    """:func:`first_root` with the Hermite cubic of the whole sum and its error bound."""
     f0, d0 = ev(c, lam, nz, off, t0)
     if f0 <= 0.0:
         return t0
@@ -195,6 +213,130 @@ def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
 
 
 @njit(cache=True, nogil=True)
+def _ev_split(c, lam, nz, off, t, cut2):
+    """f, ḟ and the same over the slow modes only (|λ|² <= cut2)."""
+    f = off
+    d = 0.0
+    fs = off
+    ds = 0.0
+    for k in range(nz):
+        e = c[k] * cmath.exp(lam[k] * t)
+        er = e.real
+        dr = (e * lam[k]).real
+        f += er
+        d += dr
+        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
+        if m2 <= cut2:
+            fs += er
+            ds += dr
+    return f, d, fs, ds
+
+
+@njit(cache=True, nogil=True)
+def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4):
+    """:func:`first_root` where a piece may also be proven clear by the Hermite cubic of the
+    slow modes minus its error bound and minus the fast modes' size (Σ_fast |c_k|, which does
+    not shrink with the piece, but which their decay makes small once they are damped)."""
+    f0, _ = ev(c, lam, nz, off, t0)
+    if f0 <= 0.0:
+        return t0
+    total = t1 - t0
+    cut2 = (4.43 / total) ** 2
+    bfast = 0.0
+    for k in range(nz):
+        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
+        a = abs(c[k])
+        w4[k] = a * m2 * m2
+        if m2 > cut2:
+            r = lam[k].real
+            bfast += a * (1.0 if r <= 0.0 else math.exp(r * total))
+            w4[k] = -w4[k]  # marks a fast mode for the slow bound
+    f0, d0, fs0, ds0 = _ev_split(c, lam, nz, off, t0, cut2)
+    f1, d1, fs1, ds1 = _ev_split(c, lam, nz, off, t1, cut2)
+    tiny = 1e-9 * total
+    stack[0, 0] = t0
+    stack[0, 1] = t1
+    stack[0, 2] = f0
+    stack[0, 3] = d0
+    stack[0, 4] = f1
+    stack[0, 5] = d1
+    stack[0, 6] = fs0
+    stack[0, 7] = ds0
+    stack[0, 8] = fs1
+    stack[0, 9] = ds1
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        lo = stack[sp, 0]
+        hi = stack[sp, 1]
+        flo = stack[sp, 2]
+        dlo = stack[sp, 3]
+        fhi = stack[sp, 4]
+        dhi = stack[sp, 5]
+        if flo <= 0.0:
+            return lo
+        ln = hi - lo
+        if fhi <= 0.0:
+            if ln <= 0.0625 * total or sp >= STACK - 5:
+                return refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t)
+        else:
+            fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
+            full = 0.0
+            slow = 0.0
+            for k in range(nz):
+                r = lam[k].real
+                g = 1.0 if r <= 0.0 and lo >= 0.0 else math.exp(max(r * lo, r * hi))
+                full += abs(w4[k]) * g
+                if w4[k] >= 0.0:
+                    slow += w4[k] * g
+            l4 = ln * ln * ln * ln / 384.0
+            if fmin - full * l4 > 0.0:
+                continue
+            smin, _, _, _ = cubic_minmax(stack[sp, 6], stack[sp, 7], stack[sp, 8],
+                                         stack[sp, 9], ln)  # fmt: skip
+            if smin - slow * l4 - bfast > 0.0:
+                continue
+            if ln <= tiny or sp >= STACK - 5:
+                tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
+                fc, _ = ev(c, lam, nz, off, tc)
+                if fc <= 0.0:
+                    return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
+                continue
+        pf = fhi
+        pd = dhi
+        psf = stack[sp, 8]
+        psd = stack[sp, 9]
+        lsf = stack[sp, 6]
+        lsd = stack[sp, 7]
+        for i in range(3, -1, -1):
+            a_ = lo + ln * i / 4.0
+            b_ = lo + ln * (i + 1) / 4.0 if i < 3 else hi
+            if i > 0:
+                fa, da, sfa, sda = _ev_split(c, lam, nz, off, a_, cut2)
+            else:
+                fa = flo
+                da = dlo
+                sfa = lsf
+                sda = lsd
+            stack[sp, 0] = a_
+            stack[sp, 1] = b_
+            stack[sp, 2] = fa
+            stack[sp, 3] = da
+            stack[sp, 4] = pf
+            stack[sp, 5] = pd
+            stack[sp, 6] = sfa
+            stack[sp, 7] = sda
+            stack[sp, 8] = psf
+            stack[sp, 9] = psd
+            sp += 1
+            pf = fa
+            pd = da
+            psf = sfa
+            psd = sda
+    return -1.0
+
+
+@njit(cache=True, nogil=True)
 def clear_whole(c, lam, E, nz, off, ln):
     """True if f > 0 on [0, ln] is proven, with ``E = e^{λ·ln}`` given (no exponentials
     evaluated): by the Hermite cubic of the whole sum and its error bound, or by that of the
@@ -251,12 +393,20 @@ def skip_start(c, lam, nz, off, h):
     """Smallest tried t in (0, h] where f is clearly positive after leaving f = 0, or -1.
 
     After a release (or a departure from a stop) f grows like t² or t³ from round-off; roots
-    before this t are round-off, not events."""
+    before this t are round-off, not events. Where f'' > 0 the first try is twice the t at
+    which f''t²/2 reaches the round-off level; otherwise t grows eightfold from h·8⁻¹³."""
     scale = abs(off)
     for k in range(nz):
         scale += abs(c[k])
     eps = 1e-12 * scale
-    t = h * 8.0**-13
+    tmin = h * 8.0**-13
+    _, dd = ev2(c, lam, nz, 0.0)
+    if dd > 0.0:
+        t = min(max(2.0 * math.sqrt(2.0 * eps / dd), tmin), h)
+        f, _ = ev(c, lam, nz, off, t)
+        if f > eps:
+            return t
+    t = tmin
     while t <= h * (1.0 + 1e-12):
         f, _ = ev(c, lam, nz, off, t)
         if f > eps:
