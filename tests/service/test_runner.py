@@ -147,8 +147,8 @@ def test_summary_counts_outcomes(tmp_path: Path, capsys: pytest.CaptureFixture[s
     study = parse_study(
         {
             "name": "outcomes",
-            "solver": {"steps_per_period": 256, "max_periods": 60, "window": 5},
-            "grid": {"gamma_r": [0.5, 1.0, 2.3, 3.2], "gap": [0.1, 0.5], "theta": 0.3,
+            "solver": {"steps_per_period": 256, "max_periods": 120, "window": 5},
+            "grid": {"gamma_r": [0.5, 1.0, 2.2, 4.5], "gap": [0.1, 0.5], "theta": 0.3,
                      "sigma": 0.05, "gamma_s": 1.0},
         }
     )  # fmt: skip

@@ -24,11 +24,11 @@ from service.study import parse_study
 from worker.simulate import simulate_chunk
 from worker.solvers.settings import OUTCOMES
 
-SOLVER = {"steps_per_period": 256, "max_periods": 60, "window": 5}
+SOLVER = {"steps_per_period": 256, "max_periods": 120, "window": 5}
 
 
 def _study(**grid: Any) -> Any:
-    g = {"gamma_r": [0.5, 1.0, 2.0], "gap": [0.1, 0.5], "theta": 0.3, "sigma": 0.05}
+    g = {"gamma_r": [0.5, 1.0, 2.2], "gap": [0.1, 0.5], "theta": 0.3, "sigma": 0.05}
     g.update(grid)
     g.setdefault("gamma_s", 1.0)
     return parse_study({"name": "store", "solver": SOLVER, "grid": g})
