@@ -18,18 +18,19 @@ frequency for that reason.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from worker.checks import nonnegative, positive
+from worker.model.modal import betas
+
 __all__ = [
     "CELL_FIELDS",
     "TABLE1_FREQUENCIES_HZ",
     "PhysicalCell",
-    "cantilever_betas",
 ]
 
 # The measured plan of the paper's experiment (Sec. 3): 12–22 Hz by 2, 23–30 Hz by 1,
@@ -39,84 +40,6 @@ TABLE1_FREQUENCIES_HZ: tuple[float, ...] = (
     23.0, 24.0, 25.0, 26.0, 27.0, 28.0, 29.0, 30.0,
     32.0, 34.0, 36.0, 38.0, 40.0, 42.0,
 )  # fmt: skip
-
-
-def _sech(beta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return ``1 / cosh(beta)`` for ``beta >= 0`` without overflow.
-
-    ``cosh`` overflows past ``beta ≈ 710``; written with ``exp(-beta)`` the value simply
-    underflows to zero, which is the correct limit.
-    """
-    e = np.exp(-beta)
-    return 2.0 * e / (1.0 + e * e)
-
-
-def cantilever_betas(n: int) -> NDArray[np.float64]:
-    """Return the first ``n`` clamped–free eigenvalues ``β_i`` (roots of ``cos β cosh β = -1``).
-
-    Parameters
-    ----------
-    n : int
-        Number of roots, ``n >= 1``.
-
-    Returns
-    -------
-    numpy.ndarray
-        Shape ``(n,)``, increasing: 1.8751, 4.6941, 7.8548, 10.9955, 14.1372, ...
-
-    Raises
-    ------
-    ValueError
-        If ``n`` is not an integer ``>= 1``.
-
-    Notes
-    -----
-    The equation is solved in the equivalent form ``cos β + sech β = 0``. The product form
-    ``cos β cosh β + 1`` is useless beyond the first few roots: ``cosh β`` grows like ``e^β``
-    so the residual is dominated by rounding in ``cos β``. In the ``sech`` form the function
-    has slope ``≈ ∓1`` near each root, and Newton's method started at ``(i - 1/2)π`` (the
-    asymptotic root) converges quadratically to the i-th root for every ``i``.
-    """
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
-        raise ValueError(f"n must be an integer >= 1, got {n!r}")
-    beta = (np.arange(1, int(n) + 1, dtype=np.float64) - 0.5) * np.pi
-    for _ in range(50):
-        sech = _sech(beta)
-        value = np.cos(beta) + sech
-        # d/dβ sech β = -sech β · tanh β
-        slope = -np.sin(beta) - sech * np.tanh(beta)
-        step = value / slope
-        beta = beta - step
-        if np.all(np.abs(step) <= 4.0 * np.finfo(np.float64).eps * beta):
-            break
-    return beta
-
-
-def _check_real(name: str, value: Any) -> float:
-    """Return ``value`` as a finite ``float``, or raise ``ValueError`` naming the field."""
-    # bool is an Integral; a True length is almost certainly a bug, so it is refused.
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    out = float(value)
-    if not math.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {out!r}")
-    return out
-
-
-def _check_positive(name: str, value: Any) -> float:
-    """Return ``value`` as a finite ``float > 0``, or raise ``ValueError`` naming the field."""
-    out = _check_real(name, value)
-    if out <= 0.0:
-        raise ValueError(f"{name} must be > 0, got {out!r}")
-    return out
-
-
-def _check_nonnegative(name: str, value: Any) -> float:
-    """Return ``value`` as a finite ``float >= 0``, or raise ``ValueError`` naming the field."""
-    out = _check_real(name, value)
-    if out < 0.0:
-        raise ValueError(f"{name} must be >= 0, got {out!r}")
-    return out
 
 
 # The cell's own quantities: always given, always > 0 (the rest of a PhysicalCell has defaults).
@@ -197,15 +120,15 @@ class PhysicalCell:
         # Normalising (e.g. numpy scalars, ints) keeps repr/equality/hashing predictable;
         # frozen dataclasses need object.__setattr__ for this.
         for name in CELL_FIELDS:
-            object.__setattr__(self, name, _check_positive(name, getattr(self, name)))
+            object.__setattr__(self, name, positive(name, getattr(self, name)))
         for name in ("damping_ratio", "gap_m"):
-            object.__setattr__(self, name, _check_nonnegative(name, getattr(self, name)))
+            object.__setattr__(self, name, nonnegative(name, getattr(self, name)))
         # The optional gaps stay None when omitted instead of being filled with gap_m, so
         # that dataclasses.replace(cell, gap_m=...) still moves both gaps.
         for name in ("gap1_m", "gap2_m"):
             value = getattr(self, name)
             if value is not None:
-                object.__setattr__(self, name, _check_nonnegative(name, value))
+                object.__setattr__(self, name, nonnegative(name, value))
 
         amplitude, acceleration = self.base_amplitude_m, self.base_acceleration_m_s2
         if (amplitude is None) == (acceleration is None):
@@ -214,14 +137,12 @@ class PhysicalCell:
                 f"got base_amplitude_m={amplitude!r}, base_acceleration_m_s2={acceleration!r}"
             )
         if amplitude is not None:
-            object.__setattr__(
-                self, "base_amplitude_m", _check_positive("base_amplitude_m", amplitude)
-            )
+            object.__setattr__(self, "base_amplitude_m", positive("base_amplitude_m", amplitude))
         else:
             object.__setattr__(
                 self,
                 "base_acceleration_m_s2",
-                _check_positive("base_acceleration_m_s2", acceleration),
+                positive("base_acceleration_m_s2", acceleration),
             )
 
     # ----------------------------------------------------------------------------------
@@ -258,8 +179,8 @@ class PhysicalCell:
                 "outer_mass_kg must not be given to from_added_mass, got "
                 f"{fields['outer_mass_kg']!r}; pass body_mass_kg and added_mass_kg instead"
             )
-        body = _check_positive("body_mass_kg", body_mass_kg)
-        added = _check_nonnegative("added_mass_kg", added_mass_kg)
+        body = positive("body_mass_kg", body_mass_kg)
+        added = nonnegative("added_mass_kg", added_mass_kg)
         return cls(outer_mass_kg=body + added, **fields)
 
     @classmethod
@@ -381,7 +302,7 @@ class PhysicalCell:
             If ``n`` is not an integer ``>= 1``.
         """
         scale = math.sqrt(self.EI / (self.rho_A_L * self.length_m**3))
-        return cantilever_betas(n) ** 2 * scale / (2.0 * math.pi)
+        return betas(n) ** 2 * scale / (2.0 * math.pi)
 
     # ----------------------------------------------------------------------------------
     # Frequency conversion and the non-dimensional model
@@ -403,7 +324,7 @@ class PhysicalCell:
         ValueError
             If ``frequency_hz`` is not finite and > 0.
         """
-        f = _check_positive("frequency_hz", frequency_hz)
+        f = positive("frequency_hz", frequency_hz)
         return 2.0 * math.pi * f / self.omega_m
 
     def gamma_r_to_hz(self, gamma_r: float) -> float:
@@ -424,7 +345,7 @@ class PhysicalCell:
         ValueError
             If ``gamma_r`` is not finite and > 0.
         """
-        g = _check_positive("gamma_r", gamma_r)
+        g = positive("gamma_r", gamma_r)
         return g * self.omega_m / (2.0 * math.pi)
 
     def base_amplitude_at(self, frequency_hz: float) -> float:
@@ -447,7 +368,7 @@ class PhysicalCell:
         ValueError
             If ``frequency_hz`` is not finite and > 0.
         """
-        f = _check_positive("frequency_hz", frequency_hz)
+        f = positive("frequency_hz", frequency_hz)
         if self.base_amplitude_m is not None:
             return self.base_amplitude_m
         assert self.base_acceleration_m_s2 is not None  # guaranteed by __post_init__

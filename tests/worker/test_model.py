@@ -119,7 +119,7 @@ def test_rayleigh_damping_gives_xi_b_at_modes_1_and_5():
         ("modes", 31, "modes must be an integer in 1…30, got 31"),
         ("modes", 2.5, "modes must be an integer"),
         ("coupling", "weird", "coupling must be one of paper, full, got 'weird'"),
-        ("theta", "a", "theta must be a number"),
+        ("theta", "a", "theta must be a real number, got 'a'"),
     ],
 )
 def test_bad_parameters_name_field_value_and_range(field, value, message):

@@ -12,7 +12,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from worker.physical import TABLE1_FREQUENCIES_HZ, PhysicalCell, cantilever_betas
+from worker.model import betas as cantilever_betas
+from worker.physical import TABLE1_FREQUENCIES_HZ, PhysicalCell
 
 # Positive, finite, physically plausible magnitudes for property tests.
 _pos = st.floats(min_value=1e-4, max_value=1e4, allow_nan=False, allow_infinity=False)

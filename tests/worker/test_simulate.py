@@ -139,7 +139,7 @@ def test_chunk_reports_bad_points_instead_of_raising():
         ({"steps_per_period": 2}, "steps_per_period must be an integer in 4"),
         ({"max_periods": 10, "window": 10}, "window must be < max_periods"),
         ({"periodicity_tol": 0.0}, "periodicity_tol must be in"),
-        ({"stat_tol_db": float("nan")}, "stat_tol_db must be in"),
+        ({"stat_tol_db": float("nan")}, "stat_tol_db must be finite, got nan"),
         ({"extrapolate": "yes"}, "extrapolate must be true or false"),
         ({"lcp": "pgs"}, "lcp must be one of closed, lemke"),
     ],

@@ -2,7 +2,6 @@
 closed form is known (docs/accuracy.md; the full sweep is benchmarks/stress.py)."""
 
 import math
-import time
 
 import pytest
 
@@ -101,11 +100,11 @@ def test_paper_coupling_at_theta_1e3_diverges_and_every_method_says_so_quickly()
     # all three methods find the same growth. The event solver used to hang on the overflow.
     pt = {**BASE, "theta": 1e3}
     for method in METHODS:
-        t0 = time.perf_counter()
         rec = simulate_chunk([pt], {"method": method})[0]
-        assert time.perf_counter() - t0 < 10.0
         assert_clean(rec)
         assert rec["failed"] and "diverged" in rec["reason"]
+        # caught within a few periods, not at the end of the budget (measured: 7)
+        assert rec["periods"] <= 20
     # the consistent coupling at the same θ is bounded
     rec = simulate_chunk([{**pt, "coupling": "full"}], {"method": "event"})[0]
     assert_clean(rec)
@@ -136,9 +135,9 @@ def test_euler_default_steps_are_never_refused(kw):
 def test_euler_default_beyond_the_step_limit_is_refused_not_run():
     pt = {**BASE, "modes": 30, "sigma": 10.0, "gamma_r": 0.01, "g1": 0.0, "g2": 0.0}
     assert euler_default_steps(assemble(CellParams(**pt))) > MAX_STEPS_PER_PERIOD
-    t0 = time.perf_counter()
     rec = simulate_chunk([pt], {"method": "euler"})[0]
-    assert time.perf_counter() - t0 < 5.0
+    # refused before a single step is taken
+    assert rec["periods"] == 0 and rec["steps"] == 0
     assert rec["failed"] and "steps_per_period" in rec["reason"]
     assert_clean(rec)
 

@@ -19,6 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
+from worker.checks import finite, positive
+
 __all__ = [
     "LEMKE_BUDGET",
     "LEMKE_OK",
@@ -48,64 +50,6 @@ _PIVOT_RTOL: float = 1e-12
 _TIE_RTOL: float = 1e-11
 
 
-def _validate_positive(value: float, name: str) -> float:
-    """Return ``value`` as a float if it is finite and strictly positive, else raise ValueError.
-
-    Parameters
-    ----------
-    value : float
-        The value to check.
-    name : str
-        Argument name, used in the error message.
-
-    Returns
-    -------
-    float
-        ``value`` converted to float.
-
-    Raises
-    ------
-    ValueError
-        If ``value`` is not a real number, not finite, or not strictly positive.
-    """
-    try:
-        x = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a real number > 0, got {value!r}") from exc
-    if not np.isfinite(x) or x <= 0.0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return x
-
-
-def _validate_finite(value: float, name: str) -> float:
-    """Return ``value`` as a float if it is finite, else raise ValueError.
-
-    Parameters
-    ----------
-    value : float
-        The value to check.
-    name : str
-        Argument name, used in the error message.
-
-    Returns
-    -------
-    float
-        ``value`` converted to float.
-
-    Raises
-    ------
-    ValueError
-        If ``value`` is not a finite real number.
-    """
-    try:
-        x = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a finite real number, got {value!r}") from exc
-    if not np.isfinite(x):
-        raise ValueError(f"{name} must be a finite real number, got {value!r}")
-    return x
-
-
 def two_stop_matrix(G_dt: float) -> np.ndarray:
     """LCP matrix of the two-stop contact problem, ``G dt [[1, -1], [-1, 1]]`` (docs/model.md §5).
 
@@ -126,7 +70,7 @@ def two_stop_matrix(G_dt: float) -> np.ndarray:
     ValueError
         If ``G_dt`` is not a finite positive number.
     """
-    g = _validate_positive(G_dt, "G_dt")
+    g = positive("G_dt", G_dt)
     return g * np.array([[1.0, -1.0], [-1.0, 1.0]])
 
 
@@ -164,9 +108,9 @@ def two_stop_closed_form(G_dt: float, c1: float, c2: float) -> tuple[float, floa
         ``c1 + c2 < 0`` beyond rounding (relative tolerance :data:`TWO_STOP_RTOL`), in which
         case both stops would be penetrated and the problem is infeasible.
     """
-    g = _validate_positive(G_dt, "G_dt")
-    a = _validate_finite(c1, "c1")
-    b = _validate_finite(c2, "c2")
+    g = positive("G_dt", G_dt)
+    a = finite("c1", c1)
+    b = finite("c2", c2)
     total = a + b
     if total < -TWO_STOP_RTOL * max(1.0, abs(a), abs(b)):
         raise ValueError(

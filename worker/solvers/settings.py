@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
+
+from worker.checks import check_fields, integer
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -33,22 +34,7 @@ OUTCOMES = ("linear", "periodic", "irregular", "unsettled", "failed")
 
 def int_in(name: str, value: Any, lo: int, hi: int) -> int:
     """``value`` as an int in ``lo…hi``, or a ``ValueError`` naming the field."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer in {lo}…{hi}, got {value!r}")
-    if not lo <= int(value) <= hi:
-        raise ValueError(f"{name} must be an integer in {lo}…{hi}, got {value}")
-    return int(value)
-
-
-def _real_in(name: str, value: Any, lo: float, hi: float, lo_open: bool = True) -> float:
-    """``value`` as a float in (lo, hi) or [lo, hi), or a ``ValueError`` naming the field."""
-    what = f"{'(' if lo_open else '['}{lo:g}, {hi:g})"
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number in {what}, got {value!r}")
-    v = float(value)
-    if not ((v > lo if lo_open else v >= lo) and v < hi and math.isfinite(v)):
-        raise ValueError(f"{name} must be in {what}, got {value!r}")
-    return v
+    return integer(name, value, lo, hi)
 
 
 @dataclass(frozen=True)
@@ -96,42 +82,29 @@ class SolverSettings:
         ``euler`` only: the two-stop LCP of each step in closed form or by Lemke's algorithm.
     """
 
-    method: str = DEFAULT_METHOD
-    steps_per_period: int | None = None
-    coarse_steps: int = 64
-    max_periods: int = 1000
-    periodicity_tol: float = 1e-9
-    window: int = 20
-    stat_tol_db: float = 0.1
-    near_margin: float = 0.1
-    adaptive: bool = True
-    early_stop: bool = True
-    extrapolate: bool = True
-    linear_tail: bool = True
-    lcp: str = "closed"
+    method: str = field(default=DEFAULT_METHOD, metadata={"choices": METHODS})
+    steps_per_period: int | None = field(
+        default=None,
+        metadata={"integer": True, "ge": 4, "le": MAX_STEPS_PER_PERIOD, "optional": True},
+    )
+    coarse_steps: int = field(default=64, metadata={"integer": True, "ge": 4, "le": 1 << 20})
+    max_periods: int = field(default=1000, metadata={"integer": True, "ge": 2, "le": 10**7})
+    periodicity_tol: float = field(default=1e-9, metadata={"gt": 0.0, "lt": 1e-2})
+    window: int = field(default=20, metadata={"integer": True, "ge": 1, "le": 10**7})
+    stat_tol_db: float = field(default=0.1, metadata={"gt": 0.0, "lt": 100.0})
+    near_margin: float = field(default=0.1, metadata={"ge": 0.0, "lt": 1.0})
+    adaptive: bool = field(default=True, metadata={"boolean": True})
+    early_stop: bool = field(default=True, metadata={"boolean": True})
+    extrapolate: bool = field(default=True, metadata={"boolean": True})
+    linear_tail: bool = field(default=True, metadata={"boolean": True})
+    lcp: str = field(default="closed", metadata={"choices": LCP_SOLVERS})
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        ints = {"coarse_steps": (4, 1 << 20), "max_periods": (2, 10_000_000),
-                "window": (1, 10_000_000)}  # fmt: skip
-        if self.steps_per_period is not None:
-            ints["steps_per_period"] = (4, MAX_STEPS_PER_PERIOD)
-        for name, (lo, hi) in ints.items():
-            object.__setattr__(self, name, int_in(name, getattr(self, name), lo, hi))
+        check_fields(self)  # every field's range is its metadata above
         if self.window >= self.max_periods:
             raise ValueError(
                 f"window must be < max_periods ({self.max_periods}), got {self.window}"
             )
-        reals = {"periodicity_tol": (0.0, 1e-2, True), "stat_tol_db": (0.0, 100.0, True),
-                 "near_margin": (0.0, 1.0, False)}  # fmt: skip
-        for name, (lo, hi, lo_open) in reals.items():
-            object.__setattr__(self, name, _real_in(name, getattr(self, name), lo, hi, lo_open))
-        for name in ("adaptive", "early_stop", "extrapolate", "linear_tail"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        if self.lcp not in LCP_SOLVERS:
-            raise ValueError(f"lcp must be one of {', '.join(LCP_SOLVERS)}, got {self.lcp!r}")
 
 
 @dataclass
