@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.runner import run_study
-from service.store import open_results
-from service.study import parse_study
+from service.studies.dataset import open_results
+from service.studies.runner import run_study
+from service.studies.schema import parse_study
 from worker.simulate import simulate_chunk
 
 STUDY = {

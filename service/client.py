@@ -1,4 +1,4 @@
-"""A small Python client of the impactcell service (httpx and xarray only).
+"""A small Python client of the impactcell service (httpx, xarray and numpy; nothing else).
 
 >>> from service.client import Client
 >>> c = Client("http://127.0.0.1:8000", token=None)
@@ -14,7 +14,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -113,6 +113,8 @@ class Client:
         transport: httpx.BaseTransport | None = None,
         timeout: float = 60.0,
     ) -> None:
+        # The client may not import the service (httpx, xarray, numpy and the standard library
+        # only), so it reads this one variable itself instead of through service Settings.
         token = token if token is not None else os.environ.get("IMPACTCELL_API_TOKEN") or None
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self._http = httpx.Client(
@@ -189,19 +191,24 @@ class Client:
     def wait(
         self,
         study_id: str,
-        progress: bool = True,
+        progress: bool | Callable[[Mapping[str, Any]], None] = True,
         *,
         timeout: float | None = None,
         poll: float = 0.5,
     ) -> dict[str, Any]:
-        """Poll until the study is finished; raises :class:`StudyFailed` if it fails/cancels."""
+        """Poll until the study is finished; raises :class:`StudyFailed` if it fails/cancels.
+
+        ``progress``: ``True`` shows a progress line on stderr; a callable is called with every
+        record polled instead (e.g. to feed a progress bar of one's own).
+        """
         t0 = time.monotonic()
-        bar: Any = None
+        bar = _ProgressLine() if progress is True else None
+        show = bar or progress or None
         try:
             while True:
                 rec = self.get(study_id)
-                if progress:
-                    bar = _show_progress(bar, rec)
+                if show:
+                    show(rec)
                 if rec["status"] == "finished":
                     return rec
                 if rec["status"] in ("failed", "cancelled"):
@@ -277,6 +284,8 @@ def _params(sel: Mapping[str, Any]) -> dict[str, str]:
     return {k: repr(float(v)) if isinstance(v, float) else str(v) for k, v in sel.items()}
 
 
+# The service's NaN-safe JSON helpers live in service.studies.dataset; the client may not import
+# service modules, so it keeps this tiny inverse (JSON null back to NaN) of its own.
 def _none_to_nan(values: Any) -> Any:
     if isinstance(values, list):
         return [_none_to_nan(v) for v in values]
@@ -319,12 +328,20 @@ def _bandgap_dataset(out: Mapping[str, Any]) -> xr.Dataset:
     return ds
 
 
-def _show_progress(bar: Any, rec: Mapping[str, Any]) -> Any:
-    from tqdm import tqdm  # only for the progress bar; the client works without it
+class _ProgressLine:
+    """A one-line progress display on stderr (the standard library only: no tqdm here)."""
 
-    if bar is None:
-        bar = tqdm(total=rec["points_total"], unit="pt", desc=rec["name"], file=sys.stderr,
-                   dynamic_ncols=True)  # fmt: skip
-    bar.update(rec["points_done"] - bar.n)
-    bar.set_postfix_str(rec["status"])
-    return bar
+    def __init__(self) -> None:
+        self.drawn = False
+
+    def __call__(self, rec: Mapping[str, Any]) -> None:
+        done, total = rec["points_done"], rec["points_total"]
+        pct = 100.0 * done / total if total else 100.0
+        sys.stderr.write(f"\r{rec['name']}: {pct:5.1f}% {done:,}/{total:,} pt [{rec['status']}]")
+        sys.stderr.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        if self.drawn:
+            sys.stderr.write("\n")
+            sys.stderr.flush()

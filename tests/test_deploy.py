@@ -3,7 +3,7 @@
 No Docker engine is needed: the compose file is validated against the Compose Specification's
 JSON schema (``../shared/compose-spec.json`` beside the repository, or the file named by
 ``IMPACTCELL_COMPOSE_SCHEMA``), and its commands, ports and environment are checked against
-``impactcell serve``'s parser and ``service.config.Settings``.
+``impactcell serve``'s parser and ``service.api.settings.Settings``.
 """
 
 from __future__ import annotations
@@ -76,12 +76,9 @@ def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentP
 
 
 def _cli_parser() -> argparse.ArgumentParser:
-    from service import cli
+    from service.cli import build_parser
 
-    load = getattr(cli, "_load_plugins", None)  # later subcommands register on import
-    if load is not None:
-        load()
-    return cli.build_parser()
+    return build_parser()
 
 
 def _check_cli_args(argv: list[str], subcommand: str) -> tuple[argparse.ArgumentParser, Any]:
@@ -102,7 +99,7 @@ def _check_cli_args(argv: list[str], subcommand: str) -> tuple[argparse.Argument
 
 
 def _settings_fields() -> set[str]:
-    from service.config import Settings
+    from service.api.settings import Settings
 
     return set(Settings.model_fields)
 
@@ -297,14 +294,14 @@ def test_compose_environment_names_are_settings_fields() -> None:
     names |= set(re.findall(r"\$\{?(IMPACTCELL_[A-Z0-9_]+)", code))
     assert names, "no IMPACTCELL_* variables in docker-compose.yml"
     unknown = {n for n in names if n[len(ENV_PREFIX) :].lower() not in fields}
-    assert not unknown, f"not fields of service.config.Settings: {sorted(unknown)}"
+    assert not unknown, f"not fields of service.api.settings.Settings: {sorted(unknown)}"
     api = _env_names(_service("api"))
     for name in ("IMPACTCELL_API_TOKEN", "IMPACTCELL_NIGHTLY_CRON", "IMPACTCELL_DATABASE_URL"):
         assert api.get(name) == f"${{{name}:-}}", f"api should pass {name} through, empty if unset"
 
 
 def test_empty_compose_variables_mean_unset(monkeypatch: pytest.MonkeyPatch) -> None:
-    from service.config import Settings
+    from service.api.settings import Settings
 
     for name in _env_names(_service("api")):
         monkeypatch.setenv(name, "")  # what ${VAR:-} gives when VAR is unset on the host

@@ -23,12 +23,13 @@ import httpx
 import pytest
 import xarray as xr
 
-from service.cli_service import free_port
+from service.api.server import free_port
 from service.client import Client
-from service.runner import run_study
-from service.store import StudyStore, open_results
-from service.study import parse_study
-from tests.service.conftest import comparable, tiny_study
+from service.studies.chunks import StudyStore
+from service.studies.dataset import open_results
+from service.studies.runner import run_study
+from service.studies.schema import parse_study
+from tests.service.helpers import comparable, tiny_study
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKERS = 2

@@ -1,0 +1,1 @@
+"""Looking at results: selection by coordinate value, bands, figures."""

@@ -1,0 +1,265 @@
+"""Bands: where the transmittance is below a threshold, and bandgap maps.
+
+A band (attenuation band, bandgap) is a maximal interval of ``x`` where the transmittance Γ is
+below ``threshold_db`` (strictly). Its edges are located by linear interpolation of Γ between
+the neighbouring grid points on either side of the crossing. Each edge has a kind:
+
+``crossing``
+    Γ crosses the threshold between two known grid points; the edge is interpolated.
+``grid_end``
+    The band reaches the first or last grid point; the edge is that grid end (the true edge
+    lies beyond the grid).
+``missing``
+    The neighbouring grid point is missing (a failed point, NaN). Missing values are
+    *unknown*: a band is never extended across a missing point, and its edge is put at the last
+    known below-threshold point. So ``[-1, NaN, -1]`` gives two bands, each with a ``missing``
+    edge next to the NaN.
+
+Selections of the other axes are those of :mod:`service.analysis.selection`; :func:`bandgap_json`
+returns plain Python data in which missing or non-finite numbers are ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import numpy as np
+import xarray as xr
+
+from service.analysis.selection import (
+    AnalysisError,
+    Selection,
+    parse_number,
+    slice_axes,
+)
+from service.studies.dataset import jsonable
+
+__all__ = ["EDGE_KINDS", "Band", "band_edges", "bandgap_json", "bandgap_map"]
+
+#: Edge kinds, in the order of their integer codes in :func:`bandgap_map`'s dataset.
+EDGE_KINDS: tuple[str, ...] = ("crossing", "grid_end", "missing")
+
+
+class Band(NamedTuple):
+    """One band: ``start <= stop`` in units of x, and the kind of each edge (``EDGE_KINDS``)."""
+
+    start: float
+    stop: float
+    start_edge: str
+    stop_edge: str
+
+
+# --------------------------------------------------------------------------- bands
+
+
+def _crossing(x0: float, g0: float, x1: float, g1: float, threshold: float) -> float:
+    """Where the straight line through (x0, g0), (x1, g1) reaches ``threshold``."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = (threshold - g0) / (g1 - g0)
+    if not math.isfinite(t):  # an infinite Γ: no slope to interpolate along
+        t = 0.5
+    t = min(max(t, 0.0), 1.0)
+    return float(x0 + t * (x1 - x0))
+
+
+def band_edges(
+    x: Sequence[float] | np.ndarray, gamma: Any, threshold_db: float = 0.0
+) -> list[Band]:
+    """Intervals of ``x`` where ``gamma < threshold_db``, edges linearly interpolated.
+
+    Parameters
+    ----------
+    x : array_like
+        Strictly increasing grid, 1-d.
+    gamma : array_like
+        Γ at ``x`` (dB); NaN marks a missing point (see the module doc).
+    threshold_db : float
+        Γ strictly below it is attenuating.
+
+    Returns
+    -------
+    list of Band
+        In increasing order of ``x``, disjoint.
+
+    Examples
+    --------
+    >>> band_edges([0, 1, 2, 3, 4], [1, -1, -3, 1, 2])
+    [Band(start=0.5, stop=2.75, start_edge='crossing', stop_edge='crossing')]
+    """
+    xs = np.asarray(x, dtype=np.float64)
+    g = np.asarray(gamma, dtype=np.float64)
+    if xs.ndim != 1 or g.shape != xs.shape:
+        raise AnalysisError(f"x and gamma must be 1-d of one length, got {xs.shape}, {g.shape}")
+    if xs.size > 1 and not np.all(np.diff(xs) > 0):
+        raise AnalysisError("x must be strictly increasing")
+    thr = float(threshold_db)
+    if not math.isfinite(thr):
+        raise AnalysisError(f"threshold_db={threshold_db!r} is not a finite number")
+    below = ~np.isnan(g) & (g < thr)
+    known = ~np.isnan(g)
+    n = xs.size
+    edges = np.flatnonzero(np.diff(np.r_[0, below.view(np.int8), 0]))
+    out: list[Band] = []
+    for i, j in zip(edges[::2], edges[1::2] - 1, strict=True):  # run of below points i..j
+        if i == 0:
+            start, start_edge = float(xs[0]), "grid_end"
+        elif not known[i - 1]:
+            start, start_edge = float(xs[i]), "missing"
+        else:
+            start, start_edge = _crossing(xs[i - 1], g[i - 1], xs[i], g[i], thr), "crossing"
+        if j == n - 1:
+            stop, stop_edge = float(xs[-1]), "grid_end"
+        elif not known[j + 1]:
+            stop, stop_edge = float(xs[j]), "missing"
+        else:
+            stop, stop_edge = _crossing(xs[j], g[j], xs[j + 1], g[j + 1], thr), "crossing"
+        out.append(Band(start, stop, start_edge, stop_edge))
+    return out
+
+
+def bandgap_map(
+    ds: xr.Dataset,
+    x: str,
+    y: str | None = None,
+    threshold_db: float = 0.0,
+    sel: Selection | None = None,
+    nearest: bool = False,
+) -> xr.Dataset:
+    """Transmittance over ``x`` (× ``y``) with the attenuating region and band edges.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A results dataset with ``transmittance_db``.
+    x : str
+        Dimension along which bands are found (e.g. ``gamma_r`` or ``frequency_hz``).
+    y : str, optional
+        Second dimension (e.g. ``gap``); bands are found for each of its values. Omit for a
+        1-d map.
+    threshold_db : float
+        Γ strictly below it is attenuating.
+    sel, nearest
+        Values of every other dimension (see :func:`slice_axes`).
+
+    Returns
+    -------
+    xarray.Dataset
+        Sorted by ``x`` (and ``y``), with ``transmittance_db`` and ``attenuating`` (False where
+        Γ is missing) over (y, x); ``band_start``, ``band_stop`` (NaN-padded) and
+        ``band_start_edge``, ``band_stop_edge`` (codes into :data:`EDGE_KINDS`, -1 as padding)
+        over (y, band); ``band_count`` over y. Attributes ``threshold_db``, ``x``, ``y`` (``""``
+        for a 1-d map).
+    """
+    thr = parse_number("threshold_db", threshold_db)
+    if y is not None and y == x:
+        raise AnalysisError(f"x and y must differ, both are {x!r}")
+    gamma = slice_axes(ds, "transmittance_db", [y, x], sel, nearest)
+    gamma = gamma.sortby(x) if y is None else gamma.sortby([y, x])
+    xv = gamma[x].values.astype(np.float64)
+    rows = gamma.values.reshape(-1, xv.size)
+    bands = [band_edges(xv, row, thr) for row in rows]
+    nb = max((len(b) for b in bands), default=0)
+    start = np.full((len(rows), nb), np.nan)
+    stop = np.full((len(rows), nb), np.nan)
+    start_edge = np.full((len(rows), nb), -1, dtype=np.int8)
+    stop_edge = np.full((len(rows), nb), -1, dtype=np.int8)
+    for r, row_bands in enumerate(bands):
+        for k, b in enumerate(row_bands):
+            start[r, k], stop[r, k] = b.start, b.stop
+            start_edge[r, k] = EDGE_KINDS.index(b.start_edge)
+            stop_edge[r, k] = EDGE_KINDS.index(b.stop_edge)
+    counts = np.array([len(b) for b in bands], dtype=np.int64)
+    ydims: tuple[str, ...] = () if y is None else (y,)
+    if y is None:
+        start, stop, start_edge, stop_edge = start[0], stop[0], start_edge[0], stop_edge[0]
+        counts = counts.reshape(())
+    xattrs = dict(gamma[x].attrs)
+    edge_attrs = {
+        "flag_values": np.arange(len(EDGE_KINDS), dtype=np.int8),
+        "flag_meanings": " ".join(EDGE_KINDS),
+        "comment": "-1 pads rows with fewer bands",
+    }
+    data_vars = {
+        "transmittance_db": gamma,
+        "attenuating": (
+            gamma.dims,
+            np.asarray(gamma.notnull() & (gamma < thr)),
+            {"long_name": f"transmittance below {thr:g} dB (False where missing)"},
+        ),
+        "band_start": (
+            (*ydims, "band"),
+            start,
+            {"units": xattrs.get("units", ""), "long_name": f"lower edge of the band in {x}"},
+        ),
+        "band_stop": (
+            (*ydims, "band"),
+            stop,
+            {"units": xattrs.get("units", ""), "long_name": f"upper edge of the band in {x}"},
+        ),
+        "band_start_edge": ((*ydims, "band"), start_edge, dict(edge_attrs)),
+        "band_stop_edge": ((*ydims, "band"), stop_edge, dict(edge_attrs)),
+        "band_count": (ydims, counts, {"long_name": f"number of bands along {x}"}),
+    }
+    out = xr.Dataset(data_vars, coords={"band": np.arange(nb)})
+    out.attrs = {
+        "threshold_db": thr,
+        "x": x,
+        "y": y or "",
+        "title": f"transmittance bands along {x}" + (f" for each {y}" if y else ""),
+    }
+    return out
+
+
+def bandgap_json(ds_map: xr.Dataset) -> dict[str, Any]:
+    """A :func:`bandgap_map` as JSON-ready data.
+
+    Returns
+    -------
+    dict
+        ``x``, ``y`` (names; ``y`` None for a 1-d map), ``threshold_db``, ``dims``, ``coords``
+        (x and y values), ``units``, ``long_names``, ``scalars`` (the selected values),
+        ``transmittance_db`` (None for missing), ``attenuating`` and ``edges``: one
+        ``{"y": value, "bands": [[start, stop], ...], "kinds": [[start_kind, stop_kind], ...]}``
+        per y value (a single entry with ``"y": None`` for a 1-d map).
+    """
+    x = str(ds_map.attrs["x"])
+    y = str(ds_map.attrs.get("y") or "") or None
+    gamma = ds_map["transmittance_db"]
+    axes = [a for a in (x, y) if a is not None]
+    coords = {a: jsonable(ds_map[a].values) for a in axes}
+    scalars = {
+        str(k): jsonable(c.values)
+        for k, c in gamma.coords.items()
+        if c.ndim == 0 and k not in ("band",)
+    }
+    starts = np.atleast_2d(ds_map["band_start"].values)
+    stops = np.atleast_2d(ds_map["band_stop"].values)
+    s_edge = np.atleast_2d(ds_map["band_start_edge"].values)
+    e_edge = np.atleast_2d(ds_map["band_stop_edge"].values)
+    counts = np.atleast_1d(ds_map["band_count"].values)
+    yvals = ds_map[y].values if y is not None else [None]
+    edges = []
+    for r, yv in enumerate(yvals):
+        n = int(counts[r])
+        edges.append(
+            {
+                "y": None if yv is None else jsonable(yv),
+                "bands": [[float(starts[r, k]), float(stops[r, k])] for k in range(n)],
+                "kinds": [[EDGE_KINDS[s_edge[r, k]], EDGE_KINDS[e_edge[r, k]]] for k in range(n)],
+            }
+        )
+    return {
+        "x": x,
+        "y": y,
+        "threshold_db": float(ds_map.attrs["threshold_db"]),
+        "dims": [str(d) for d in gamma.dims],
+        "coords": coords,
+        "units": {a: str(ds_map[a].attrs.get("units", "")) for a in axes},
+        "long_names": {a: str(ds_map[a].attrs.get("long_name", "")) for a in axes},
+        "scalars": scalars,
+        "transmittance_db": jsonable(gamma.values),
+        "attenuating": jsonable(ds_map["attenuating"].values),
+        "edges": edges,
+    }

@@ -1,0 +1,1 @@
+"""The HTTP API: app, settings, dependencies, schemas, routes, job queue, catalogue, schedule."""

@@ -1,0 +1,155 @@
+"""The FastAPI application: settings, catalogue, job manager, routes, errors, limits."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator, Awaitable, Callable
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from service.api.catalogue import Catalogue
+from service.api.deps import require_token
+from service.api.jobs import JobManager
+from service.api.routes import health, regressions, results, studies
+from service.api.settings import Settings
+from service.studies.provenance import package_version
+
+__all__ = ["create_app"]
+
+log = logging.getLogger("impactcell.app")
+
+ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
+
+
+class BodyLimit:
+    """413 for request bodies over the limit, whether or not Content-Length is given."""
+
+    def __init__(self, app: ASGIApp, limit: Callable[[], int]) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope: dict, receive: Callable, send: Callable) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit = self.limit()
+        for name, value in scope.get("headers", []):
+            if name == b"content-length":
+                try:
+                    too_big = int(value) > limit
+                except ValueError:
+                    too_big = False
+                if too_big:
+                    await _too_large(limit, send)
+                    return
+        seen = 0
+
+        async def limited() -> dict:
+            nonlocal seen
+            msg = await receive()
+            if msg["type"] == "http.request":
+                seen += len(msg.get("body", b""))
+                if seen > limit:
+                    raise _TooLarge
+            return msg
+
+        try:
+            await self.app(scope, limited, send)
+        except _TooLarge:
+            await _too_large(limit, send)
+
+
+class _TooLarge(Exception):
+    pass
+
+
+async def _too_large(limit: int, send: Callable) -> None:
+    body = f'{{"detail": "request body larger than {limit} bytes"}}'.encode()
+    await send({"type": "http.response.start", "status": 413,
+                "headers": [(b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode())]})  # fmt: skip
+    await send({"type": "http.response.body", "body": body})
+
+
+def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> FastAPI:
+    """Build the application. ``run_jobs=False`` leaves the runner thread off (API tests)."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        catalogue = Catalogue(settings.catalogue_url())
+        jobs = JobManager(settings, catalogue)
+        app.state.settings = settings
+        app.state.catalogue = catalogue
+        app.state.jobs = jobs
+        if run_jobs:
+            jobs.start()
+        nightly = None
+        if settings.nightly_cron:
+            from service.api.schedule import NightlyScheduler
+
+            nightly = NightlyScheduler(settings, catalogue)
+            nightly.start()
+        app.state.nightly = nightly
+        try:
+            yield
+        finally:
+            if nightly is not None:
+                nightly.stop()
+            jobs.stop()
+            catalogue.close()
+
+    app = FastAPI(
+        title="impactcell",
+        version=package_version(),
+        summary="Parameter studies of an impacting beam-in-mass metamaterial cell",
+        description=(
+            "Submit study definitions (grids over gaps, θ, σ, γ_s, γ_r, …), follow their "
+            "progress, fetch NetCDF datasets, JSON slices, bandgap maps and figures. When "
+            "`IMPACTCELL_API_TOKEN` is set, every route except `/health` needs "
+            "`Authorization: Bearer <token>`."
+        ),
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    auth = [Depends(require_token)]
+    app.include_router(health.router)
+    app.include_router(studies.router, dependencies=auth)
+    app.include_router(results.router, dependencies=auth)
+    app.include_router(regressions.router, dependencies=auth)
+    app.add_middleware(BodyLimit, limit=lambda: settings.max_body_bytes)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        body: dict[str, Any] = (
+            exc.detail if isinstance(exc.detail, dict) else {"detail": str(exc.detail)}
+        )
+        return JSONResponse(body, status_code=exc.status_code, headers=exc.headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        problems = []
+        for e in exc.errors():
+            loc = ".".join(str(p) for p in e.get("loc", ()))
+            got = e.get("input")
+            msg = str(e.get("msg", "invalid"))
+            if got is not None and not isinstance(got, dict | list):
+                msg += f", got {str(got)[:80]!r}"
+            problems.append({"path": loc, "message": msg})
+        detail = "; ".join(f"{p['path']}: {p['message']}" for p in problems) or "invalid request"
+        return JSONResponse({"detail": detail, "problems": problems}, status_code=422)
+
+    @app.exception_handler(Exception)
+    async def _crash(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return JSONResponse(
+            {"detail": f"internal error: {type(exc).__name__}: {exc}"}, status_code=500
+        )
+
+    return app

@@ -1,0 +1,447 @@
+"""The results catalogue: studies, their results files, regression reports and leases.
+
+SQLAlchemy 2 on any URL: a SQLite file in the data dir by default, PostgreSQL (or anything
+SQLAlchemy speaks) through ``IMPACTCELL_DATABASE_URL``. Access goes through the plain methods of
+:class:`Catalogue`; callers never see sessions.
+
+Tables are created with ``create_all``, which never changes an existing table. Until the schema
+moves to migrations (Alembic), a column added since a catalogue was created is added at startup
+by :func:`_add_missing_columns` (additive, with a server default, so old rows read as 0).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+from sqlalchemy import (
+    Boolean,
+    DateTime,
+    Float,
+    ForeignKey,
+    Integer,
+    String,
+    Text,
+    create_engine,
+    delete,
+    event,
+    func,
+    inspect,
+    select,
+    text,
+    update,
+)
+from sqlalchemy.engine import Engine
+from sqlalchemy.exc import DBAPIError, IntegrityError
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
+
+__all__ = [
+    "ACTIVE",
+    "RESUMABLE",
+    "STATUSES",
+    "Catalogue",
+    "utcnow",
+]
+
+# queued → running → finished | failed | cancelled; resume puts cancelled/failed back in queue.
+STATUSES = ("queued", "running", "finished", "failed", "cancelled")
+ACTIVE = ("queued", "running")  # can be cancelled; left by a stopped service: run again
+RESUMABLE = ("cancelled", "failed")  # can be resumed
+
+
+def utcnow() -> dt.datetime:
+    """Timezone-aware UTC now (stored as UTC; SQLite drops the zone, so it is put back on read)."""
+    return dt.datetime.now(dt.UTC)
+
+
+def _iso(t: dt.datetime | None) -> str | None:
+    if t is None:
+        return None
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=dt.UTC)
+    return t.isoformat(timespec="milliseconds")
+
+
+class _Base(DeclarativeBase):
+    pass
+
+
+class StudyRow(_Base):
+    __tablename__ = "studies"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), index=True)
+    definition: Mapped[str] = mapped_column(Text)  # canonical JSON
+    status: Mapped[str] = mapped_column(String(16), index=True)
+    points_total: Mapped[int] = mapped_column(Integer)
+    points_done: Mapped[int] = mapped_column(Integer, default=0)
+    points_failed: Mapped[int] = mapped_column(Integer, default=0)
+    points_irregular: Mapped[int] = mapped_column(Integer, default=0)
+    # Added with solver version 2 (outcomes); catalogues created before get it at startup.
+    points_unsettled: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
+    submitted_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+    started_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True))
+    finished_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True))
+    wall_s: Mapped[float | None] = mapped_column(Float)
+    error: Mapped[str | None] = mapped_column(Text)
+    failures: Mapped[str] = mapped_column(Text, default="[]")  # JSON: a sample of reasons
+    seq: Mapped[int] = mapped_column(Integer, default=0)  # submission order (queue order)
+
+
+class ResultFileRow(_Base):
+    __tablename__ = "result_files"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    study_id: Mapped[str] = mapped_column(ForeignKey("studies.id", ondelete="CASCADE"), index=True)
+    path: Mapped[str] = mapped_column(Text)
+    size_bytes: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+
+
+class RegressionRow(_Base):
+    __tablename__ = "regressions"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    started_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+    finished_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True))
+    ok: Mapped[bool | None] = mapped_column(Boolean)
+    trigger: Mapped[str] = mapped_column(String(32))
+    summary: Mapped[str] = mapped_column(Text, default="")
+    report_json: Mapped[str] = mapped_column(Text, default="{}")
+    report_md: Mapped[str] = mapped_column(Text, default="")
+    error: Mapped[str | None] = mapped_column(Text)
+
+
+class LeaseRow(_Base):
+    __tablename__ = "leases"
+
+    name: Mapped[str] = mapped_column(String(200), primary_key=True)
+    holder: Mapped[str] = mapped_column(String(200))
+    expires_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+
+
+def _aware(t: dt.datetime | None) -> dt.datetime | None:
+    if t is None or t.tzinfo is not None:
+        return t
+    return t.replace(tzinfo=dt.UTC)  # SQLite hands back naive datetimes (stored as UTC)
+
+
+def _study_dict(r: StudyRow) -> dict[str, Any]:
+    return {
+        "id": r.id,
+        "name": r.name,
+        "status": r.status,
+        "definition": json.loads(r.definition),
+        "points_total": r.points_total,
+        "points_done": r.points_done,
+        "points_failed": r.points_failed,
+        "points_irregular": r.points_irregular,
+        "points_unsettled": r.points_unsettled,
+        "submitted_at": _iso(r.submitted_at),
+        "started_at": _iso(r.started_at),
+        "finished_at": _iso(r.finished_at),
+        "wall_s": r.wall_s,
+        "error": r.error,
+        "failures": json.loads(r.failures or "[]"),
+    }
+
+
+def _regression_dict(r: RegressionRow, full: bool) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "id": r.id,
+        "started_at": _iso(r.started_at),
+        "finished_at": _iso(r.finished_at),
+        "ok": r.ok,
+        "trigger": r.trigger,
+        "summary": r.summary,
+        "error": r.error,
+    }
+    if full:
+        out["report"] = json.loads(r.report_json or "{}")
+        out["markdown"] = r.report_md
+    return out
+
+
+class Catalogue:
+    """Plain functions over the catalogue database (thread-safe: a session per call)."""
+
+    def __init__(self, url: str) -> None:
+        kwargs: dict[str, Any] = {"pool_pre_ping": True}
+        if url.startswith("sqlite"):
+            # The service's runner thread and request threads share the file.
+            kwargs["connect_args"] = {"check_same_thread": False, "timeout": 30}
+        self.url = url
+        self.engine: Engine = create_engine(url, **kwargs)
+        if url.startswith("sqlite"):
+            event.listen(self.engine, "connect", _sqlite_pragmas)
+        _Base.metadata.create_all(self.engine)
+        _add_missing_columns(self.engine)
+        self._session = sessionmaker(self.engine, expire_on_commit=False)
+
+    def close(self) -> None:
+        """Release the connection pool."""
+        self.engine.dispose()
+
+    @contextmanager
+    def _tx(self) -> Iterator[Session]:
+        with self._session.begin() as s:
+            yield s
+
+    # ------------------------------------------------------------------ studies
+
+    def add_study(
+        self, study_id: str, name: str, definition: str, points_total: int
+    ) -> tuple[dict[str, Any], bool]:
+        """Insert a queued study; returns (record, created). An existing id is returned as is."""
+        with self._tx() as s:
+            row = s.get(StudyRow, study_id)
+            if row is not None:
+                return _study_dict(row), False
+        try:
+            with self._tx() as s:
+                seq = (s.scalar(select(func.max(StudyRow.seq))) or 0) + 1
+                row = StudyRow(
+                    id=study_id, name=name, definition=definition, status="queued",
+                    points_total=points_total, points_done=0, points_failed=0,
+                    points_irregular=0, points_unsettled=0, submitted_at=utcnow(),
+                    failures="[]", seq=seq,
+                )  # fmt: skip
+                s.add(row)
+                s.flush()
+                return _study_dict(row), True
+        except IntegrityError:  # another request inserted it first
+            with self._tx() as s:
+                row = s.get(StudyRow, study_id)
+                assert row is not None
+                return _study_dict(row), False
+
+    def get_study(self, study_id: str) -> dict[str, Any] | None:
+        """The study's record, or None."""
+        with self._tx() as s:
+            row = s.get(StudyRow, study_id)
+            return None if row is None else _study_dict(row)
+
+    def list_studies(
+        self,
+        *,
+        status: str | None = None,
+        name: str | None = None,
+        limit: int = 50,
+        offset: int = 0,
+    ) -> tuple[list[dict[str, Any]], int]:
+        """Studies newest first, filtered by status and name (substring); and the total."""
+        q = select(StudyRow)
+        cq = select(func.count()).select_from(StudyRow)
+        if status:
+            q, cq = q.where(StudyRow.status == status), cq.where(StudyRow.status == status)
+        if name:  # a substring, with % and _ taken literally
+            q = q.where(StudyRow.name.contains(name, autoescape=True))
+            cq = cq.where(StudyRow.name.contains(name, autoescape=True))
+        q = q.order_by(StudyRow.seq.desc()).limit(limit).offset(offset)
+        with self._tx() as s:
+            rows = s.scalars(q).all()
+            total = int(s.scalar(cq) or 0)
+            return [_study_dict(r) for r in rows], total
+
+    def status_counts(self) -> dict[str, int]:
+        """Number of studies in each state (every state listed, zeros included)."""
+        q = select(StudyRow.status, func.count()).group_by(StudyRow.status)
+        with self._tx() as s:
+            found = {str(k): int(n) for k, n in s.execute(q).all()}
+        return {st: found.get(st, 0) for st in STATUSES}
+
+    def ids_with_status(self, statuses: Sequence[str]) -> list[str]:
+        """Ids of studies in the given states, in submission order."""
+        q = select(StudyRow.id).where(StudyRow.status.in_(statuses)).order_by(StudyRow.seq)
+        with self._tx() as s:
+            return list(s.scalars(q).all())
+
+    def update_study(self, study_id: str, **fields: Any) -> None:
+        """Set fields of a study (``failures`` may be given as a list)."""
+        if "failures" in fields and not isinstance(fields["failures"], str):
+            fields["failures"] = json.dumps(fields["failures"])
+        with self._tx() as s:
+            s.execute(update(StudyRow).where(StudyRow.id == study_id).values(**fields))
+
+    def set_status_if(
+        self, study_id: str, allowed: Sequence[str], status: str, **fields: Any
+    ) -> bool:
+        """Atomically move a study to ``status`` if it is in one of ``allowed``."""
+        with self._tx() as s:
+            res = s.execute(
+                update(StudyRow)
+                .where(StudyRow.id == study_id, StudyRow.status.in_(allowed))
+                .values(status=status, **fields)
+            )
+            return bool(res.rowcount)
+
+    def delete_study(self, study_id: str) -> None:
+        """Remove a study's record and its files' records."""
+        with self._tx() as s:
+            s.execute(delete(ResultFileRow).where(ResultFileRow.study_id == study_id))
+            s.execute(delete(StudyRow).where(StudyRow.id == study_id))
+
+    def add_result_file(self, study_id: str, path: str, size_bytes: int) -> None:
+        """Record a results file of a study (replacing an earlier record of the same path)."""
+        with self._tx() as s:
+            s.execute(
+                delete(ResultFileRow).where(
+                    ResultFileRow.study_id == study_id, ResultFileRow.path == path
+                )
+            )
+            s.add(
+                ResultFileRow(
+                    study_id=study_id, path=path, size_bytes=size_bytes, created_at=utcnow()
+                )
+            )
+
+    def result_files(self, study_id: str) -> list[dict[str, Any]]:
+        """Results files recorded for a study."""
+        q = select(ResultFileRow).where(ResultFileRow.study_id == study_id)
+        with self._tx() as s:
+            return [
+                {"path": r.path, "size_bytes": r.size_bytes, "created_at": _iso(r.created_at)}
+                for r in s.scalars(q).all()
+            ]
+
+    # ------------------------------------------------------------------ regressions
+
+    def add_regression(self, trigger: str) -> int:
+        """Open a regression run; returns its id."""
+        with self._tx() as s:
+            row = RegressionRow(started_at=utcnow(), trigger=trigger, ok=None)
+            s.add(row)
+            s.flush()
+            return int(row.id)
+
+    def finish_regression(
+        self,
+        reg_id: int,
+        *,
+        ok: bool | None,
+        summary: str,
+        report: dict[str, Any] | None = None,
+        markdown: str = "",
+        error: str | None = None,
+    ) -> None:
+        """Store the outcome of a regression run."""
+        with self._tx() as s:
+            s.execute(
+                update(RegressionRow)
+                .where(RegressionRow.id == reg_id)
+                .values(
+                    finished_at=utcnow(), ok=ok, summary=summary,
+                    report_json=json.dumps(report or {}, allow_nan=False, default=str),
+                    report_md=markdown, error=error,
+                )
+            )  # fmt: skip
+
+    def list_regressions(self, limit: int = 50, offset: int = 0) -> tuple[list[dict], int]:
+        """Regression runs, newest first, and the total."""
+        q = select(RegressionRow).order_by(RegressionRow.id.desc()).limit(limit).offset(offset)
+        with self._tx() as s:
+            rows = s.scalars(q).all()
+            total = int(s.scalar(select(func.count()).select_from(RegressionRow)) or 0)
+            return [_regression_dict(r, full=False) for r in rows], total
+
+    def get_regression(self, reg_id: int) -> dict[str, Any] | None:
+        """One regression run with its JSON and markdown report."""
+        with self._tx() as s:
+            row = s.get(RegressionRow, reg_id)
+            return None if row is None else _regression_dict(row, full=True)
+
+    def latest_regression(self) -> dict[str, Any] | None:
+        """The newest finished regression run (summary only)."""
+        q = (
+            select(RegressionRow)
+            .where(RegressionRow.finished_at.is_not(None))
+            .order_by(RegressionRow.id.desc())
+            .limit(1)
+        )
+        with self._tx() as s:
+            row = s.scalars(q).first()
+            return None if row is None else _regression_dict(row, full=False)
+
+    # ------------------------------------------------------------------ leases
+
+    def acquire_lease(self, name: str, holder: str, ttl_s: float) -> bool:
+        """Take the named lease for ``ttl_s`` seconds if it is free or expired (or ours).
+
+        Used so that, with several service processes on one catalogue, a scheduled job runs once:
+        whoever inserts or takes over the row first wins; the others see it held.
+        """
+        now = utcnow()
+        expires = now + dt.timedelta(seconds=ttl_s)
+        try:
+            with self._tx() as s:
+                row = s.get(LeaseRow, name, with_for_update=True)
+                if row is None:
+                    s.add(LeaseRow(name=name, holder=holder, expires_at=expires))
+                    return True
+                held_until = _aware(row.expires_at)
+                if row.holder != holder and held_until is not None and held_until > now:
+                    return False
+                # Compare-and-set on the values we read, so two takers of an expired lease
+                # cannot both win (SQLite has no row locks).
+                res = s.execute(
+                    update(LeaseRow)
+                    .where(
+                        LeaseRow.name == name,
+                        LeaseRow.holder == row.holder,
+                        LeaseRow.expires_at == row.expires_at,
+                    )
+                    .values(holder=holder, expires_at=expires)
+                )
+                return bool(res.rowcount)
+        except IntegrityError:  # a concurrent insert of the same lease won
+            return False
+
+    def release_lease(self, name: str, holder: str) -> None:
+        """Give the lease back if we hold it."""
+        with self._tx() as s:
+            s.execute(delete(LeaseRow).where(LeaseRow.name == name, LeaseRow.holder == holder))
+
+
+def _add_missing_columns(engine: Engine) -> list[str]:
+    """Add the model's columns that an existing table lacks; returns ``table.column`` added.
+
+    Only additive columns with a server default are ever added (old rows get the default), so
+    this is safe on SQLite and PostgreSQL alike and with several processes starting at once
+    (whoever adds a column second finds it there).
+    """
+    added: list[str] = []
+    for table in _Base.metadata.sorted_tables:
+        have = {c["name"] for c in inspect(engine).get_columns(table.name)}
+        for col in table.columns:
+            if col.name in have:
+                continue
+            if col.server_default is None:
+                raise RuntimeError(
+                    f"catalogue table {table.name} lacks column {col.name}, which has no "
+                    "server default to add it with; migrate the catalogue by hand"
+                )
+            kind = col.type.compile(dialect=engine.dialect)
+            default = col.server_default.arg.text  # type: ignore[attr-defined]
+            null = "" if col.nullable else " NOT NULL"
+            ddl = f"ALTER TABLE {table.name} ADD COLUMN {col.name} {kind} DEFAULT {default}{null}"
+            try:
+                with engine.begin() as conn:
+                    conn.execute(text(ddl))
+            except DBAPIError:
+                # Another process added it first; anything else is a real error.
+                have = {c["name"] for c in inspect(engine).get_columns(table.name)}
+                if col.name not in have:
+                    raise
+            added.append(f"{table.name}.{col.name}")
+    return added
+
+
+def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
+    # WAL lets readers (API requests) run while the runner thread writes progress.
+    cur = dbapi_conn.cursor()
+    cur.execute("PRAGMA journal_mode=WAL")
+    cur.execute("PRAGMA foreign_keys=ON")
+    cur.close()

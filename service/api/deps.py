@@ -1,0 +1,66 @@
+"""Shared route dependencies: settings, catalogue, job manager, auth, study lookup."""
+
+from __future__ import annotations
+
+import hmac
+from typing import Annotated, Any
+
+from fastapi import Depends, HTTPException, Path, Request
+
+from service.api.catalogue import Catalogue
+from service.api.jobs import JobManager
+from service.api.settings import Settings
+from service.studies.chunks import is_study_id
+
+__all__ = [
+    "CatalogueDep",
+    "JobsDep",
+    "SettingsDep",
+    "StudyId",
+    "require_token",
+    "study_or_404",
+]
+
+
+def _settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def _catalogue(request: Request) -> Catalogue:
+    return request.app.state.catalogue
+
+
+def _jobs(request: Request) -> JobManager:
+    return request.app.state.jobs
+
+
+SettingsDep = Annotated[Settings, Depends(_settings)]
+CatalogueDep = Annotated[Catalogue, Depends(_catalogue)]
+JobsDep = Annotated[JobManager, Depends(_jobs)]
+StudyId = Annotated[str, Path(description="study id (hex content hash)", max_length=64)]
+
+
+def require_token(request: Request) -> None:
+    """Bearer-token check when ``IMPACTCELL_API_TOKEN`` is set (constant-time comparison)."""
+    token = request.app.state.settings.api_token
+    if not token:
+        return
+    header = request.headers.get("authorization", "")
+    scheme, _, given = header.partition(" ")
+    ok = scheme.lower() == "bearer" and hmac.compare_digest(
+        given.strip().encode("utf-8", "surrogateescape"), token.encode("utf-8")
+    )
+    if not ok:
+        raise HTTPException(
+            401, "missing or wrong bearer token", headers={"WWW-Authenticate": "Bearer"}
+        )
+
+
+def study_or_404(catalogue: Catalogue, study_id: str) -> dict[str, Any]:
+    """The study's record; 404 for unknown or malformed ids (no path is built from the text)."""
+    if not is_study_id(study_id):
+        raise HTTPException(404, f"no study with id {study_id!r} (ids are hex digests)")
+    rec = catalogue.get_study(study_id)
+    if rec is None:
+        raise HTTPException(404, f"no study with id {study_id!r}")
+    return rec

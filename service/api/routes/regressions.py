@@ -1,0 +1,47 @@
+"""``/regressions``: the catalogued nightly regression reports."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, HTTPException, Path, Query
+from fastapi.responses import PlainTextResponse
+
+from service.api.deps import CatalogueDep
+from service.api.schemas import ErrorOut, RegressionList, RegressionOut
+
+router = APIRouter(prefix="/regressions", tags=["regressions"])
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": ErrorOut, "description": "missing or wrong bearer token"},
+    404: {"model": ErrorOut, "description": "no such regression run"},
+}
+
+
+@router.get("", response_model=RegressionList, responses={401: _ERRORS[401]})
+def list_regressions(
+    catalogue: CatalogueDep,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    offset: Annotated[int, Query(ge=0, le=2**31)] = 0,
+) -> dict[str, Any]:
+    """Nightly regression runs, newest first."""
+    items, total = catalogue.list_regressions(limit=limit, offset=offset)
+    return {"items": items, "total": total, "limit": limit, "offset": offset}
+
+
+@router.get(
+    "/{reg_id}",
+    response_model=RegressionOut,
+    responses={**_ERRORS, 200: {"content": {"text/markdown": {}}}},
+)
+def get_regression(
+    catalogue: CatalogueDep,
+    reg_id: Annotated[int, Path(ge=1, le=2**31)],
+    format: Literal["json", "markdown"] = "json",  # noqa: A002 - the query parameter's name
+) -> Any:
+    """One regression run: its JSON report, or the markdown report with ``format=markdown``."""
+    rec = catalogue.get_regression(reg_id)
+    if rec is None:
+        raise HTTPException(404, f"no regression run with id {reg_id}")
+    if format == "markdown":
+        return PlainTextResponse(rec["markdown"] or "", media_type="text/markdown")
+    return rec

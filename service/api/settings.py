@@ -1,0 +1,96 @@
+"""Settings: one pydantic-settings object, from ``IMPACTCELL_*`` variables and the CLI.
+
+The only place that reads ``IMPACTCELL_*`` variables (the Python client, which may not import
+the service, reads ``IMPACTCELL_API_TOKEN`` itself). The service reads it once at start; every
+command of the CLI builds one from the environment and its flags (a flag wins over the
+environment, the environment over the default) and passes its values down.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, ValidationError, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["DEFAULT_PORT", "DEFAULT_URL", "Settings", "validate_cron"]
+
+DEFAULT_PORT = 8000
+DEFAULT_URL = f"http://127.0.0.1:{DEFAULT_PORT}"
+
+
+def validate_cron(expr: str) -> str:
+    """A standard 5-field cron expression (minute hour day month weekday), normalised."""
+    from croniter import croniter
+
+    text = " ".join(str(expr).split())
+    if len(text.split(" ")) != 5 or not croniter.is_valid(text):
+        raise ValueError(
+            f"nightly_cron must be a 5-field cron expression (minute hour day-of-month month "
+            f"day-of-week), e.g. '0 2 * * *'; got {expr!r}"
+        )
+    return text
+
+
+class Settings(BaseSettings):
+    """Everything the service reads from its environment (prefix ``IMPACTCELL_``).
+
+    Command-line options override these.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="IMPACTCELL_", extra="ignore")
+
+    host: str = "127.0.0.1"
+    port: int = Field(DEFAULT_PORT, ge=0, le=65535)
+    data_dir: Path = Path("data")  # the store's default root too (service.studies.chunks)
+    # Any SQLAlchemy URL; default: a SQLite file in the data dir.
+    database_url: str | None = None
+    # tcp://host:port of a dask scheduler; default: an embedded LocalCluster.
+    scheduler: str | None = None
+    workers: int | None = Field(None, ge=1, description="processes of the embedded cluster")
+    # When set, every route except /health needs "Authorization: Bearer <token>".
+    api_token: str | None = None
+    max_body_bytes: int = Field(1_000_000, ge=1024)
+    # Grid-size limit of a study; unset = the study schema's (2,000,000).
+    max_points: int | None = Field(None, ge=1)
+    # Cron expression (5 fields) for the nightly regression suite; unset = no schedule.
+    nightly_cron: str | None = None
+    nightly_dir: Path | None = None
+    # The service the CLI's client commands (submit, status) talk to.
+    url: str = DEFAULT_URL
+
+    @field_validator("api_token", "database_url", "scheduler", "nightly_cron", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, v: object) -> object:
+        # compose files pass "${VAR:-}": an empty string means "not set", not "token ''".
+        return None if isinstance(v, str) and not v.strip() else v
+
+    @field_validator("nightly_cron")
+    @classmethod
+    def _cron(cls, v: str | None) -> str | None:
+        if v is None:
+            return v
+        return validate_cron(v)
+
+    @classmethod
+    def from_flags(cls, **flags: Any) -> Settings:
+        """The environment's settings with the command-line flags that were given on top.
+
+        Flags that are ``None`` (not given) leave the environment's value or the default.
+
+        Raises
+        ------
+        ValueError
+            Naming every bad field and its value (the CLI exits 2 with it).
+        """
+        try:
+            return cls(**{k: v for k, v in flags.items() if v is not None})
+        except ValidationError as exc:
+            raise ValueError(str(exc)) from None
+
+    def catalogue_url(self) -> str:
+        """The catalogue's SQLAlchemy URL (a SQLite file in the data dir by default)."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'catalogue.sqlite').resolve()}"

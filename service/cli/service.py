@@ -1,0 +1,263 @@
+"""``impactcell serve | submit | status | demo``: the service from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from service.api.settings import DEFAULT_URL
+
+__all__ = ["add_commands", "find_studies_dir"]
+
+
+def find_studies_dir() -> Path:
+    """The shipped ``studies/`` folder (repository checkout), else ``./studies``."""
+    here = Path(__file__).resolve().parents[2] / "studies"
+    return here if here.is_dir() else Path("studies").resolve()
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from service.api.app import create_app
+    from service.api.settings import Settings
+
+    settings = Settings.from_flags(
+        host=args.host, port=args.port, data_dir=args.data_dir, scheduler=args.scheduler,
+        database_url=args.database_url, workers=args.workers,
+    )  # fmt: skip
+    catalogue = _without_password(settings.catalogue_url())
+    print(
+        f"impactcell service on http://{settings.host}:{settings.port} "
+        f"(data {settings.data_dir}, catalogue {catalogue}, "
+        f"cluster {settings.scheduler or 'embedded LocalCluster'}, "
+        f"auth {'on' if settings.api_token else 'off'})",
+        file=sys.stderr,
+    )
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port,
+                log_level=args.log_level)  # fmt: skip
+    return 0
+
+
+def _without_password(url: str) -> str:
+    """A database URL fit to print: SQLAlchemy's rendering with the password hidden."""
+    from sqlalchemy import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except ArgumentError:  # not a URL SQLAlchemy reads (the catalogue will say so): show none
+        return "***"
+
+
+class _ProgressBar:
+    """A tqdm bar fed with the records ``Client.wait`` polls (the client itself has no tqdm)."""
+
+    def __init__(self) -> None:
+        self.bar: Any = None
+
+    def __call__(self, rec: Any) -> None:
+        from tqdm import tqdm
+
+        if self.bar is None:
+            self.bar = tqdm(total=rec["points_total"], unit="pt", desc=rec["name"],
+                            file=sys.stderr, dynamic_ncols=True)  # fmt: skip
+        self.bar.update(rec["points_done"] - self.bar.n)
+        self.bar.set_postfix_str(rec["status"])
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _wait(client: Any, study_id: str, progress: bool) -> dict[str, Any]:
+    """``client.wait``, with a progress bar on stderr unless ``progress`` is false."""
+    bar = _ProgressBar() if progress else None
+    try:
+        return client.wait(study_id, progress=bar or False)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _client(args: argparse.Namespace) -> Any:
+    from service.api.settings import Settings
+    from service.client import Client
+
+    # --url and --token over IMPACTCELL_URL and IMPACTCELL_API_TOKEN ("": no token).
+    settings = Settings.from_flags(url=args.url, api_token=args.token)
+    return Client(settings.url, token=settings.api_token or "")
+
+
+def _cmd_submit(args: argparse.Namespace) -> int:
+    from service.client import ClientError, StudyFailed
+
+    with _client(args) as c:
+        try:
+            rec = c.submit(args.study)
+            print(f"{rec['id']}  {rec['name']}  {rec['status']}  {rec['points_total']:,} points")
+            if args.wait:
+                rec = _wait(c, rec["id"], progress=not args.no_progress)
+                print(f"{rec['id']}  finished in {rec['wall_s'] or 0:.1f} s, "
+                      f"{rec['points_failed']} failed")  # fmt: skip
+        except StudyFailed as exc:
+            print(f"impactcell: {exc}", file=sys.stderr)
+            return 1
+        except ClientError as exc:
+            _print_problems(exc)
+            return 2
+    return 0
+
+
+def _print_problems(exc: Any) -> None:
+    print(f"impactcell: error: {exc.message}", file=sys.stderr)
+    for p in exc.problems or []:
+        print(f"  {p.get('path')}: {p.get('message')}", file=sys.stderr)
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    from service.client import ClientError
+
+    with _client(args) as c:
+        try:
+            recs = [c.get(args.id)] if args.id else c.list(limit=args.limit)
+        except ClientError as exc:
+            _print_problems(exc)
+            return 2
+    if args.json:
+        print(json.dumps(recs[0] if args.id else recs))
+        return 0
+    for r in recs:
+        pct = 100.0 * r["progress"]
+        print(f"{r['id']}  {r['status']:<9}  {pct:5.1f}%  {r['points_done']:>9,}/"
+              f"{r['points_total']:<9,}  failed {r['points_failed']:<6,} {r['name']}")  # fmt: skip
+        if args.id:
+            for k in ("submitted_at", "started_at", "finished_at", "wall_s", "error"):
+                print(f"  {k:<13} {r[k]}")
+            # outcomes of the points (counted when the study finishes)
+            print(f"  {'irregular':<13} {r.get('points_irregular', 0):,}")
+            print(f"  {'unsettled':<13} {r.get('points_unsettled', 0):,}")
+            for f in r["failures"][:5]:
+                print(f"  failed point {f['coords']}: {f['reason']}")
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from service.api.server import ServerThread
+    from service.api.settings import Settings
+    from service.client import Client
+    from service.studies.dataset import encoding
+
+    out = Path(args.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    study = (
+        Path(args.study)
+        if args.study
+        else find_studies_dir() / ("paper-fig5-gaps.yaml" if args.full else "demo-fig5.yaml")
+    )
+    if not study.is_file():
+        raise ValueError(f"demo study file not found: {study}")
+    settings = Settings(host="127.0.0.1", port=0, data_dir=out / "data", api_token=None,
+                        workers=args.workers)  # fmt: skip
+    t0 = time.perf_counter()
+    server = ServerThread(settings).start()
+    print(f"service on {server.url} (embedded LocalCluster), data in {settings.data_dir}",
+          file=sys.stderr)  # fmt: skip
+    try:
+        with Client(server.url) as c:
+            rec = c.submit(study)
+            print(f"submitted {study.name}: {rec['points_total']:,} points, id {rec['id']}",
+                  file=sys.stderr)  # fmt: skip
+            rec = _wait(c, rec["id"], progress=not args.no_progress)
+            ds = c.dataset(rec["id"])
+            nc = out / f"{rec['name']}.nc"
+            ds.to_netcdf(nc, engine="netcdf4", encoding=encoding(ds))
+            sel = _demo_selection(ds, "gamma_r", "gap")
+            gaps = c.bandgap_map(rec["id"], x="gamma_r", y="gap", nearest=True, **sel)
+            png = out / "bandgap.png"
+            png.write_bytes(c.plot(rec["id"], "bandgap", x="gamma_r", y="gap", **sel))
+            (out / "transmittance.png").write_bytes(
+                c.plot(rec["id"], "transmittance", x="gamma_r", hue="gap", **sel)
+            )
+            edges = json.loads(gaps.attrs["edges"])
+            (out / "bandgap.json").write_text(json.dumps(edges, indent=1), encoding="utf-8")
+    finally:
+        server.stop()
+    print(f"{rec['points_total']:,} points in {time.perf_counter() - t0:.1f} s "
+          f"({rec['points_failed']} failed, {rec['points_irregular']} irregular, "
+          f"{rec.get('points_unsettled', 0)} unsettled)")  # fmt: skip
+    for band in edges:
+        spans = ", ".join(f"{a:.3g}–{b:.3g}" for a, b in band["bands"]) or "none"
+        print(f"  gap {band['y']:g}: Γ < 0 dB for γ_r in {spans}")
+    print(f"wrote {nc.name}, bandgap.png, transmittance.png, bandgap.json to")
+    print(out)
+    return 0
+
+
+def _demo_selection(ds: Any, x: str, y: str) -> dict[str, float]:
+    # The map is Γ over γ_r × gap; other axes are taken at a representative value (θ = 0.3).
+    sel = {}
+    for d in ds.dims:
+        if d in (x, y, "stop") or ds.sizes[d] == 1:
+            continue
+        vals = ds[d].values
+        sel[str(d)] = float(0.3 if d == "theta" and (abs(vals - 0.3) < 1e-9).any() else vals[0])
+    return sel
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``serve``, ``submit``, ``status`` and ``demo``."""
+    p = sub.add_parser("serve", help="run the REST service (uvicorn)")
+    p.add_argument("--host", default=None, help="bind address (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=None, help="port (default 8000)")
+    p.add_argument("--data-dir", default=None, help="data folder (default ./data)")
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        help="dask scheduler tcp://host:port (default: embedded LocalCluster)",
+    )
+    p.add_argument(
+        "--database-url",
+        default=None,
+        help="catalogue SQLAlchemy URL (default: SQLite in the data dir)",
+    )
+    p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
+    p.add_argument(
+        "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
+    )
+    p.set_defaults(func=_cmd_serve)  # fmt: skip
+
+    url_help = f"service URL (default $IMPACTCELL_URL or {DEFAULT_URL})"
+    p = sub.add_parser("submit", help="submit a study file to the service")
+    p.add_argument("study", help="study file (.yaml, .yml or .json)")
+    p.add_argument("--url", default=None, help=url_help)
+    p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
+    p.add_argument("--wait", action="store_true", help="wait until it finishes (progress bar)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar with --wait")
+    p.set_defaults(func=_cmd_submit)
+
+    p = sub.add_parser("status", help="status of one study, or the latest studies")
+    p.add_argument("id", nargs="?", default=None, help="study id (default: list studies)")
+    p.add_argument("--url", default=None, help=url_help)
+    p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
+    p.add_argument("--limit", type=int, default=20, help="studies to list")
+    p.add_argument("--json", action="store_true", help="JSON output")
+    p.set_defaults(func=_cmd_status)
+
+    p = sub.add_parser(
+        "demo", help="start the service in-process, run the Figure-5 study, write the bandgap map"
+    )
+    p.add_argument("--out", default="impactcell-demo", help="output folder")
+    p.add_argument(
+        "--full",
+        action="store_true",
+        help="the full paper-fig5-gaps study (5,820 points) instead of the demo cut",
+    )
+    p.add_argument("--study", default=None, help="another study file")
+    p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_demo)  # fmt: skip

@@ -1,0 +1,171 @@
+"""``impactcell point | spectrum | warmup``: single points and spectra, without a service."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from worker.solvers.settings import DEFAULT_METHOD, METHODS
+
+__all__ = ["add_commands"]
+
+
+def _cell_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--theta", type=float, default=0.3, help="mass ratio θ = ρAl/m_o")
+    p.add_argument("--sigma", type=float, default=0.05, help="beam stiffness parameter σ")
+    p.add_argument("--gamma-s", type=float, default=1.0, help="inverse mass frequency γ_s")
+    p.add_argument("--xi", type=float, default=0.05, help="damping ratio ξ")
+    p.add_argument("--xi-b", type=float, default=None, help="beam Rayleigh ratio (default ξ)")
+    p.add_argument("--gap", type=float, default=0.1, help="both clearances g̃1 = g̃2")
+    p.add_argument("--g1", type=float, default=None, help="clearance to stop 1 (overrides --gap)")
+    p.add_argument("--g2", type=float, default=None, help="clearance to stop 2 (overrides --gap)")
+    p.add_argument("--modes", type=int, default=5, help="number of beam modes, 1…30")
+    p.add_argument("--coupling", default="paper", help="paper (Eq. 29) or full")
+    p.add_argument(
+        "--method", default=None, help=f"{', '.join(METHODS)} (default {DEFAULT_METHOD})"
+    )
+    p.add_argument("--steps-per-period", type=int, default=None, help="time steps per period")
+    p.add_argument("--max-periods", type=int, default=None,
+                   help="period budget (default: the solver's)")  # fmt: skip
+
+
+def _params(args: argparse.Namespace, gamma_r: float):
+    from worker.model import CellParams
+
+    g1 = args.gap if args.g1 is None else args.g1
+    g2 = args.gap if args.g2 is None else args.g2
+    return CellParams(
+        theta=args.theta, sigma=args.sigma, gamma_s=args.gamma_s, gamma_r=gamma_r, xi=args.xi,
+        g1=g1, g2=g2, modes=args.modes, coupling=args.coupling, xi_b=args.xi_b,
+    )  # fmt: skip
+
+
+def _settings(args: argparse.Namespace):
+    from worker.simulate import SolverSettings
+
+    given = {"method": args.method, "steps_per_period": args.steps_per_period,
+             "max_periods": args.max_periods}  # fmt: skip
+    return SolverSettings(**{k: v for k, v in given.items() if v is not None})
+
+
+def _outcome_text(r) -> str:
+    """``linear``, ``periodic (period 2)``, ``irregular`` or ``unsettled``."""
+    if r.outcome == "periodic":
+        return f"periodic (period {r.response_period})"
+    return r.outcome
+
+
+def _cmd_point(args: argparse.Namespace) -> int:
+    from worker.simulate import simulate_point
+
+    result = simulate_point(_params(args, args.gamma_r), _settings(args))
+    d = result.as_dict()
+    if args.json:
+        print(json.dumps(d))
+        return 0
+    if result.failed:
+        print(f"failed: {result.reason}")
+        return 0
+    se = result.transmittance_db_se
+    print(f"transmittance Γ     {result.transmittance_db:.6f}"
+          + (f" ± {se:.2g}" if se is not None else "") + " dB")  # fmt: skip
+    print(f"amplitude A_s       {result.amplitude:.6g}")
+    print(f"θ_eff (harmonic)    {result.theta_eff:.6g}")
+    ts = result.theta_eff_slope
+    print(f"θ_eff (slope)       {'n/a' if ts is None else f'{ts:.6g}'}")
+    print(f"outcome             {_outcome_text(result)} after {result.periods} periods")
+    if result.reason:
+        print(f"reason              {result.reason}")
+    if result.floquet_multiplier is not None:
+        print(f"Floquet multiplier  |μ| = {result.floquet_multiplier:.4g} (estimate)")
+    i1, i2 = result.impacts_per_period
+    print(f"impacts / period    stop 1: {i1:g}, stop 2: {i2:g}")
+    print(f"steps               {result.steps} ({result.contact_steps} with contact)")
+    print(f"wall time           {result.wall_s * 1e3:.2f} ms ({result.method})")
+    return 0
+
+
+def _cmd_spectrum(args: argparse.Namespace) -> int:
+    from worker.simulate import simulate_point
+
+    if args.num < 1:
+        raise ValueError(f"num must be >= 1, got {args.num}")
+    settings = _settings(args)
+    rows = []
+    for g in np.linspace(args.gamma_r_start, args.gamma_r_stop, args.num):
+        r = simulate_point(_params(args, float(g)), settings)
+        rows.append((float(g), r))
+    if args.json:
+        print(json.dumps([{"gamma_r": g, **r.as_dict()} for g, r in rows]))
+        return 0
+    head = ("gamma_r", "Gamma_dB", "se_dB", "theta_eff", "outcome", "period", "|mu|", "ms")
+    print("{:>8}  {:>11}  {:>7}  {:>9}  {:<9}  {:>6}  {:>6}  {:>7}".format(*head))
+    for g, r in rows:
+        # "-" where a value does not apply, so every row has every column
+        gam = "-" if r.transmittance_db is None else f"{r.transmittance_db:11.5f}"
+        se = "-" if r.transmittance_db_se is None else f"{r.transmittance_db_se:7.3f}"
+        th = "-" if r.theta_eff is None else f"{r.theta_eff:9.4f}"
+        per = str(r.response_period) if r.response_period else "-"
+        mu = "-" if r.floquet_multiplier is None else f"{r.floquet_multiplier:6.3f}"
+        print(f"{g:8.4f}  {gam:>11}  {se:>7}  {th:>9}  {r.outcome:<9}  {per:>6}  {mu:>6}  "
+              f"{r.wall_s * 1e3:7.2f}")  # fmt: skip
+    return 0
+
+
+def _cmd_warmup(args: argparse.Namespace) -> int:
+    from worker.simulate import kernels_cached, warm_up
+
+    methods = list(dict.fromkeys(args.method or METHODS))  # given order, no repeats
+    total = time.perf_counter()
+    for m in methods:
+        cached = kernels_cached(m)
+        what = {True: "loading from numba's cache", False: "compiling (once per machine)"}.get(
+            cached, "compiling or loading"
+        )
+        print(f"{m}: {what} ...", flush=True)
+        t0 = time.perf_counter()
+        warm_up(m, quiet=True)
+        now = kernels_cached(m)
+        on_disk = {True: "cached on disk", False: "NOT cached on disk"}.get(now, "cache unknown")
+        print(f"{m}: ready in {time.perf_counter() - t0:.1f} s ({on_disk})", flush=True)
+    print(f"{len(methods)} method{'s' if len(methods) != 1 else ''} ready in "
+          f"{time.perf_counter() - total:.1f} s")  # fmt: skip
+    return 0
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``point``, ``spectrum`` and ``warmup``."""
+    p = sub.add_parser("point", help="simulate one point")
+    _cell_arguments(p)
+    p.add_argument("--gamma-r", type=float, default=1.0, help="excitation frequency γ_r")
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.set_defaults(func=_cmd_point)
+
+    p = sub.add_parser("spectrum", help="transmittance over a γ_r range")
+    _cell_arguments(p)
+    p.add_argument("--gamma-r-start", type=float, default=0.2)
+    p.add_argument("--gamma-r-stop", type=float, default=6.0)
+    p.add_argument("--num", type=int, default=30)
+    p.add_argument("--json", action="store_true", help="a JSON list on stdout")
+    p.set_defaults(func=_cmd_spectrum)
+
+    p = sub.add_parser(
+        "warmup",
+        help="compile the numba kernels ahead (or load them from numba's on-disk cache)",
+        description="Compile the numba kernels of the given solver methods (default: every "
+        "method), or load them from numba's on-disk cache when they are there, so that no "
+        "point, study or dask worker pays for the compilation later.",
+    )
+    p.add_argument(
+        "--method",
+        nargs="+",
+        action="extend",
+        choices=METHODS,
+        default=None,
+        metavar="M",
+        help=f"methods to warm up: {', '.join(METHODS)} (default all)",
+    )
+    p.set_defaults(func=_cmd_warmup)  # fmt: skip

@@ -1,0 +1,158 @@
+"""``impactcell run | show``: parameter studies from the command line, without a service."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+__all__ = ["add_commands", "positive_int"]
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from service.api.settings import Settings
+    from service.studies.runner import run_study
+    from service.studies.schema import load_study
+
+    # --out, --scheduler and --max-points over IMPACTCELL_DATA_DIR, _SCHEDULER, _MAX_POINTS.
+    settings = Settings.from_flags(
+        data_dir=args.out, scheduler=args.scheduler, max_points=args.max_points
+    )
+    study = load_study(args.study, max_points=settings.max_points)
+    bar: Any = None
+    progress = None
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        def progress(done: int, total: int) -> None:
+            nonlocal bar
+            if bar is None:
+                bar = tqdm(
+                    total=total,
+                    initial=done,
+                    unit="pt",
+                    desc=study.name,
+                    file=sys.stderr,
+                    dynamic_ncols=True,
+                    smoothing=0.1,
+                )
+            else:
+                bar.update(done - bar.n)
+
+    try:
+        s = run_study(
+            study,
+            settings.data_dir,
+            scheduler=settings.scheduler,
+            workers=args.workers,
+            chunk_size=args.chunk_size,
+            serial=args.serial,
+            progress=progress,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.json:
+        print(json.dumps({**s.__dict__, "path": str(s.path)}))
+        return 0
+    earlier = s.points - s.computed
+    resumed = "" if s.computed in (0, s.points) else f" ({earlier:,} from an earlier run)"
+    print(f"study      {study.name} ({s.study_id})")
+    print(f"points     {s.points:,}{' (already complete)' if s.reused else ''}")
+    print(f"computed   {s.computed:,}{resumed}")
+    print(f"failed     {s.failed:,}")
+    print(f"irregular  {s.irregular:,}")
+    print(f"unsettled  {s.unsettled:,}")
+    print(f"time       {s.wall_s:.2f} s wall, {s.kernel_s:.2f} s in kernels")
+    print(f"file       {s.path}")
+    return 0
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from service.studies.dataset import open_results, summarize
+    from service.studies.variables import OUTCOMES
+
+    ds = open_results(args.file)
+    if args.json:
+        print(json.dumps({**summarize(ds), "attrs": {k: str(v) for k, v in ds.attrs.items()}}))
+        return 0
+    counts = summarize(ds)
+    a = ds.attrs
+    print(f"study      {a.get('study_name', '?')} ({a.get('study_id', '?')})")
+    print(
+        f"created    {a.get('created', '?')}  solver {a.get('solver_version', '?')}  "
+        f"impactcell {a.get('impactcell_version', '?')}  git {a.get('git_commit', '?')}"
+    )
+    outcomes = "  ".join(f"{k} {counts[k]:,}" for k in OUTCOMES if k != "failed" and k in counts)
+    print(f"points     {counts['points']:,}  failed {counts['failed']:,}  {outcomes}".rstrip())
+    sizes = ", ".join(f"{k}={v}" for k, v in ds.sizes.items() if k != "stop")
+    print(f"dimensions {sizes or '-'}")
+    for name, c in ds.coords.items():
+        if name == "stop":
+            continue
+        v = c.values
+        rng = f"{v.item():g}" if v.ndim == 0 else f"{np.min(v):g} … {np.max(v):g} ({v.size})"
+        print(f"  {name:<22} {rng:<28} {c.attrs.get('units', '')}")
+    print("variables")
+    for name, v in ds.data_vars.items():
+        vals = v.values
+        if vals.dtype.kind == "f" and np.isfinite(vals).any():
+            stat = f"{np.nanmin(vals):.4g} … {np.nanmax(vals):.4g}"
+        else:
+            stat = ""
+        print(f"  {name:<22} {stat:<28} {v.attrs.get('units', '')}")
+    return 0
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Add ``run`` and ``show``."""
+    p = sub.add_parser("run", help="run (or resume) a parameter study")
+    p.add_argument("study", help="study file (.yaml, .yml or .json)")
+    p.add_argument("--out", default=None, help="data root (default $IMPACTCELL_DATA_DIR or ./data)")
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        help="dask scheduler address, e.g. tcp://host:8786 (default "
+        "$IMPACTCELL_SCHEDULER, else an embedded LocalCluster)",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="worker processes of the embedded cluster (default: one per core)",
+    )
+    p.add_argument(
+        "--chunk-size",
+        type=positive_int,
+        default=None,
+        help="points per dask task (default 32, less for small studies)",
+    )
+    p.add_argument(
+        "--max-points",
+        type=positive_int,
+        default=None,
+        help="grid size limit (default $IMPACTCELL_MAX_POINTS or 2,000,000)",
+    )
+    p.add_argument("--serial", action="store_true", help="run in this process, without dask")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="summary as one JSON object")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("show", help="summarise a results file")
+    p.add_argument("file", help="results file (.nc)")
+    p.add_argument("--json", action="store_true", help="summary as one JSON object")
+    p.set_defaults(func=_cmd_show)

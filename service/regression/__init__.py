@@ -1,0 +1,1 @@
+"""The nightly regression suite: spec, suite, comparison, report, run."""

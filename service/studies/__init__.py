@@ -1,0 +1,1 @@
+"""Study files, grids, runs and results: schema, variables, chunk store, datasets, runner."""

@@ -1,0 +1,310 @@
+"""The results store: every file path of a study, its chunk files, atomic writes.
+
+Layout under the data root (``--out``, ``--data-dir``, ``IMPACTCELL_DATA_DIR`` or ``./data``,
+resolved by the caller's :class:`~service.api.settings.Settings`)::
+
+    studies/<id>/study.json            canonical definition (written once)
+    studies/<id>/chunks/<start>-<stop>.npz   one finished chunk of points
+    studies/<id>/results.nc            the collated dataset (NetCDF4, zlib)
+
+Ids are content hashes (:attr:`service.studies.schema.Study.id`), never user-chosen names. Every
+file is written to a temporary name in the same folder, flushed, and renamed into place, so a
+crash (even SIGKILL) never leaves a file that looks complete but is not.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from service.studies.dataset import FILL_INT, PENDING, encoding
+from service.studies.schema import Study
+from service.studies.variables import VARIABLES, outcome_codes
+from worker.simulate import SOLVER_VERSION
+
+__all__ = [
+    "CHUNK_FIELDS",
+    "DEFAULT_DATA_DIR",
+    "STUDY_ID",
+    "StudyStore",
+    "atomic_write",
+    "data_root",
+    "is_study_id",
+    "iter_chunk_ranges",
+]
+
+DEFAULT_DATA_DIR = Path("data")
+#: A study id: a hex content hash (the only text a study's file paths are built from).
+STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
+_CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
+# Fields kept in chunk files (everything simulate_chunk reports that a dataset may hold).
+CHUNK_FIELDS = tuple(VARIABLES)
+
+
+def is_study_id(text: str) -> bool:
+    """Whether ``text`` has the form of a study id (a hex digest)."""
+    return bool(STUDY_ID.match(text))
+
+
+def data_root(out: str | os.PathLike[str] | None = None) -> Path:
+    """The data root: ``out``, else ``./data`` (callers pass ``Settings.data_dir``)."""
+    return DEFAULT_DATA_DIR if out is None else Path(out)
+
+
+def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    """Call ``write(tmp)`` on a temporary file next to ``path``, fsync it, rename into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        write(tmp)
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    try:  # make the rename itself durable
+        dfd = os.open(path.parent, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(dfd)
+    except OSError:
+        pass
+    finally:
+        os.close(dfd)
+
+
+def iter_chunk_ranges(ranges: Iterable[tuple[int, int]], size: int) -> list[tuple[int, int]]:
+    """Split (start, stop) runs into pieces of at most ``size`` points."""
+    if size < 1:
+        raise ValueError(f"chunk size must be >= 1, got {size}")
+    out = []
+    for a, b in ranges:
+        for s in range(a, b, size):
+            out.append((s, min(s + size, b)))
+    return out
+
+
+# --------------------------------------------------------------------------- records -> arrays
+
+
+def _columns(records: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
+    """Per-field arrays of result records; ``None`` becomes NaN (floats) or -1 (ints), the
+    ``outcome`` string its flag value."""
+    n = len(records)
+    cols: dict[str, np.ndarray] = {}
+    for name, var in VARIABLES.items():
+        if name == "impacts_per_period":
+            arr = np.full((n, 2), np.nan)
+            for i, r in enumerate(records):
+                v = r.get(name)
+                if v is not None:
+                    arr[i] = v
+        elif var.kind == "float":
+            arr = np.array(
+                [np.nan if r.get(name) is None else float(r[name]) for r in records],
+                dtype=np.float64,
+            )
+        elif var.kind in ("int", "maskint"):
+            arr = np.array(
+                [FILL_INT if r.get(name) is None else int(r[name]) for r in records],
+                dtype=np.int64,
+            )
+        elif var.kind == "bool":
+            arr = np.array([bool(r.get(name)) for r in records], dtype=bool)
+        elif var.kind == "flag":
+            arr = outcome_codes(r.get(name) for r in records)
+        else:
+            arr = np.array([str(r.get(name) or "") for r in records], dtype=np.str_)
+            if arr.dtype.itemsize == 0:
+                arr = arr.astype("<U1")
+        cols[name] = arr
+    return cols
+
+
+# --------------------------------------------------------------------------- the store
+
+
+class StudyStore:
+    """Files of one study under a data root."""
+
+    def __init__(self, root: str | os.PathLike[str] | None, study: Study) -> None:
+        self.study = study
+        self.id = study.id
+        if not is_study_id(self.id):
+            raise ValueError(f"study id must be a hex digest, got {self.id!r}")
+        self.folder = data_root(root) / "studies" / self.id
+        self.chunk_dir = self.folder / "chunks"
+
+    @property
+    def results_path(self) -> Path:
+        """Where the collated NetCDF file goes."""
+        return self.folder / "results.nc"
+
+    @property
+    def definition_path(self) -> Path:
+        """Where the canonical definition goes."""
+        return self.folder / "study.json"
+
+    def prepare(self) -> None:
+        """Create the folder and record the definition (refusing a hash collision)."""
+        self.chunk_dir.mkdir(parents=True, exist_ok=True)
+        text = self.study.canonical_json()
+        if self.definition_path.exists():
+            on_disk = json.loads(self.definition_path.read_text(encoding="utf-8"))
+            if on_disk.get("definition") != self.study.canonical():
+                raise ValueError(
+                    f"study folder {self.folder} holds a different definition; remove it"
+                )
+            return
+        payload = json.dumps(
+            {"id": self.id, "solver_version": SOLVER_VERSION, "definition": json.loads(text)},
+            indent=1,
+            sort_keys=True,
+        )
+        atomic_write(self.definition_path, lambda p: p.write_text(payload, encoding="utf-8"))
+        for stale in self.chunk_dir.glob(".*.tmp"):  # left by a crash mid-write
+            stale.unlink(missing_ok=True)
+
+    # ---------------------------------------------------------------- chunks
+
+    def write_chunk(
+        self, start: int, stop: int, records: Sequence[Mapping[str, Any]], *, retry: bool = False
+    ) -> Path:
+        """Write one finished chunk atomically; ``retry`` marks results to recompute on resume."""
+        if len(records) != stop - start:
+            raise ValueError(
+                f"chunk {start}-{stop} needs {stop - start} records, got {len(records)}"
+            )
+        cols = _columns(records)
+        path = self.chunk_dir / f"{start}-{stop}.npz"
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, _start=start, _stop=stop, _retry=retry, **cols)
+
+        atomic_write(path, write)
+        return path
+
+    def chunks(self) -> list[tuple[int, int, Path]]:
+        """Finished chunk files as (start, stop, path), by start."""
+        if not self.chunk_dir.is_dir():
+            return []
+        out = []
+        for p in self.chunk_dir.iterdir():
+            m = _CHUNK.match(p.name)
+            if m:
+                out.append((int(m.group(1)), int(m.group(2)), p))
+        return sorted(out)
+
+    def _load_chunk(self, path: Path) -> dict[str, np.ndarray] | None:
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (OSError, ValueError, KeyError, EOFError):
+            return None
+
+    def done_mask(self) -> np.ndarray:
+        """Boolean mask of points whose results are stored (and need no retry).
+
+        Chunk files that cannot be read, or that hold retry-later failures, are removed so that
+        their points are computed again.
+        """
+        done = np.zeros(self.study.size, dtype=bool)
+        for start, stop, path in self.chunks():
+            ok = 0 <= start < stop <= self.study.size
+            if ok:
+                data = self._load_chunk(path)
+                ok = data is not None and not bool(data["_retry"])
+            if not ok:
+                path.unlink(missing_ok=True)
+                continue
+            done[start:stop] = True
+        return done
+
+    def has_retry_chunks(self) -> bool:
+        """Whether some stored chunk failed as a task and should be computed again."""
+        for _, _, path in self.chunks():
+            data = self._load_chunk(path)
+            if data is None or bool(data["_retry"]):
+                return True
+        return False
+
+    def missing_ranges(self) -> list[tuple[int, int]]:
+        """Maximal runs of points with no stored result, as (start, stop)."""
+        done = self.done_mask()
+        edges = np.flatnonzero(np.diff(np.r_[1, done.view(np.int8), 1]))
+        return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+    def collect(self) -> dict[str, np.ndarray]:
+        """Every point's stored results as flat arrays; raises if any point is missing."""
+        cols, filled = self._gather(strict=True)
+        if not filled.all():
+            n = filled.size
+            raise ValueError(f"{int((~filled).sum())} of {n} points have no results yet")
+        return cols
+
+    def collect_partial(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Results stored so far, and the mask of points that have them.
+
+        Points without results are filled as failed with reason ``pending``. Chunk files that
+        vanish while reading (a run finishing and tidying up) are treated as not there.
+        """
+        cols, filled = self._gather(strict=False)
+        missing = int((~filled).sum())
+        if missing:
+            from worker.simulate import SolverSettings, failed_result
+
+            rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
+            fill = _columns([rec])
+            for name, arr in fill.items():
+                if name not in cols:
+                    dtype = object if arr.dtype.kind == "U" else arr.dtype
+                    cols[name] = np.empty((filled.size, *arr.shape[1:]), dtype=dtype)
+                cols[name][~filled] = arr[0]
+        return cols, filled
+
+    def _gather(self, strict: bool) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        n = self.study.size
+        filled = np.zeros(n, dtype=bool)
+        cols: dict[str, np.ndarray] = {}
+        for start, stop, path in self.chunks():
+            data = self._load_chunk(path)
+            if data is None and not strict:
+                continue
+            if data is None:
+                raise ValueError(f"chunk file {path} cannot be read")
+            if filled[start:stop].any():
+                raise ValueError(f"chunk file {path} overlaps another chunk")
+            for name in CHUNK_FIELDS:
+                a = data[name]
+                if name not in cols:
+                    dtype = object if a.dtype.kind == "U" else a.dtype
+                    cols[name] = np.empty((n, *a.shape[1:]), dtype=dtype)
+                cols[name][start:stop] = a
+            filled[start:stop] = True
+        return cols, filled
+
+    # ---------------------------------------------------------------- results
+
+    def write_results(self, ds: xr.Dataset) -> Path:
+        """Write the collated dataset atomically (NetCDF4, zlib)."""
+        enc = encoding(ds)
+        atomic_write(self.results_path, lambda p: ds.to_netcdf(p, engine="netcdf4", encoding=enc))
+        return self.results_path
+
+    def remove_chunks(self) -> None:
+        """Delete the chunk files once the results file holds them."""
+        for _, _, path in self.chunks():
+            path.unlink(missing_ok=True)

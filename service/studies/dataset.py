@@ -1,0 +1,254 @@
+"""Results datasets: collation of per-point results into xarray, NetCDF encoding, JSON.
+
+A study's results are one dataset: one dimension per varying axis, CF ``units`` and
+``long_name`` on every coordinate and variable (:mod:`service.studies.variables`), and the
+study definition, its id, the code's provenance (:mod:`service.studies.provenance`) and the
+solver settings as global attributes.
+
+Missing values: a failed point has ``failed = 1``, ``outcome = failed``, a ``reason``, and every
+measured variable missing. Some values are missing by nature at points that did not fail:
+``transmittance_db_se`` (only irregular and unsettled points have one), ``floquet_multiplier``
+(only linear and periodic points), ``theta_eff_slope`` (where the phase portrait has no slope).
+Floats are NaN in memory and the netCDF ``_FillValue`` on disk (no NaN is written); integer
+variables that can be missing (``response_period``, ``steady_period``) are stored as int32 with
+``_FillValue = -1`` and read back by xarray as float with NaN.
+
+JSON: NaN is never written. :func:`jsonable` and :func:`json_number` turn missing and
+non-finite numbers into ``None``, and :func:`json_text` refuses any NaN that slipped through.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from service.studies.provenance import provenance_attrs
+from service.studies.schema import Study
+from service.studies.variables import (
+    AXES,
+    VARIABLES,
+    outcome_attrs,
+    outcome_counts,
+    outcome_names,
+)
+from worker.simulate import SOLVER_VERSION
+
+__all__ = [
+    "FILL_FLOAT",
+    "FILL_INT",
+    "PENDING",
+    "encoding",
+    "json_number",
+    "json_text",
+    "jsonable",
+    "open_results",
+    "results_from_records",
+    "summarize",
+]
+
+FILL_FLOAT = 9.969209968386869e36  # netCDF's default double fill (NC_FILL_DOUBLE)
+FILL_INT = -1
+PENDING = "pending: not computed yet"  # reason of points a partial dataset does not have yet
+# Model parameters a physical study's dataset carries as coordinates beside the SI axes.
+_DERIVED = ("gamma_r", "theta", "sigma", "gamma_s", "xi", "g1", "g2")
+
+
+# --------------------------------------------------------------------------- collation
+
+
+def _attrs(name: str) -> dict[str, str]:
+    info = AXES[name]
+    return {"units": info.units, "long_name": info.long_name}
+
+
+def results_from_records(
+    study: Study,
+    cols: Mapping[str, np.ndarray],
+    *,
+    created: str | None = None,
+    computed: np.ndarray | None = None,
+) -> xr.Dataset:
+    """Collate flat per-point arrays (C order over the study's axes) into a Dataset.
+
+    ``computed`` (a flat mask) marks a partial dataset: it adds a ``pending`` variable and the
+    global attributes ``partial = 1`` and ``points_done``.
+    """
+    dims_map = study.dims()
+    dims = tuple(dims_map)
+    shape = study.shape
+    coords: dict[str, Any] = {k: (k, v, _attrs(k)) for k, v in dims_map.items()}
+    for k, v in study.scalars().items():
+        coords[k] = ((), v, _attrs(k))
+    coords["stop"] = ("stop", np.array([1, 2], dtype=np.int8), _attrs("stop"))
+    if study.is_physical:
+        # Results carry the model's parameters too (γ_r next to Hz, and the rest).
+        pts = list(study.iter_points())
+        for k in _DERIVED:
+            v = np.array([p[k] for p in pts], dtype=np.float64)
+            attrs = dict(_attrs(k))
+            attrs["long_name"] += " (derived from the physical cell, docs/model.md section 8)"
+            if k in coords:
+                continue
+            arr, kept = v.reshape(shape), list(dims)
+            for ax in reversed(range(len(dims))):  # keep only the dims it varies along
+                if np.all(arr == arr.take([0], axis=ax)):
+                    arr = arr.take(0, axis=ax)
+                    kept.pop(ax)
+            coords[k] = (tuple(kept), arr, attrs) if kept else ((), float(arr), attrs)
+
+    failed = np.asarray(cols["failed"], dtype=bool)
+    groups = {g for g, on in study.outputs.model_dump().items() if on} | {""}
+    data_vars: dict[str, Any] = {}
+    for name, var in VARIABLES.items():
+        if var.group not in groups:
+            continue
+        a = np.asarray(cols[name])
+        if var.kind in ("float", "maskint"):
+            a = a.astype(np.float64)
+            if var.kind == "maskint":
+                a[a == FILL_INT] = np.nan
+            if var.mask:
+                a[failed] = np.nan
+        elif var.kind == "int":
+            a = a.astype(np.int64)
+        elif var.kind == "bool":
+            a = a.astype(bool)
+        elif var.kind == "flag":
+            a = a.astype(np.int8)
+        else:
+            a = np.array([str(x) for x in a], dtype=object)
+        attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
+        if var.kind == "flag":
+            attrs.update(outcome_attrs())
+        if name == "impacts_per_period":
+            data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
+        else:
+            data_vars[name] = (dims, a.reshape(shape), attrs)
+    provenance = provenance_attrs()
+    attrs = {
+        "Conventions": "CF-1.8",
+        "title": f"impactcell study {study.name}",
+        "study_name": study.name,
+        "study_id": study.id,
+        "study": study.canonical_json(),
+        "impactcell_version": provenance.pop("impactcell_version"),
+        "solver_version": SOLVER_VERSION,
+        "solver_settings": json.dumps(asdict(study.solver.settings()), sort_keys=True),
+        "git_commit": provenance.pop("git_commit"),
+        **provenance,  # git_dirty, and the versions of numpy, numba, xarray and dask
+        "created": created or _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "source": "impactcell simulation of an impacting beam-in-mass metamaterial cell",
+        "comment": (
+            "failed = 1 marks a point that could not be computed; its measured variables are "
+            "missing (_FillValue) and reason says why"
+        ),
+    }
+    if computed is not None:
+        data_vars["pending"] = (
+            dims,
+            ~np.asarray(computed, dtype=bool).reshape(shape),
+            {"units": "1", "long_name": "point not computed yet (partial dataset)"},
+        )
+        attrs["partial"] = np.int8(1)
+        attrs["points_done"] = int(np.sum(computed))
+        attrs["comment"] += "; partial dataset: pending = 1 marks points not computed yet"
+    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
+
+
+# --------------------------------------------------------------------------- NetCDF
+
+
+def encoding(ds: xr.Dataset) -> dict[str, dict[str, Any]]:
+    """NetCDF encoding: zlib everywhere it applies, fill values for missing, no NaN on disk."""
+    enc: dict[str, dict[str, Any]] = {}
+    for name in ds.data_vars:
+        var = VARIABLES.get(str(name))
+        dt = ds[name].dtype
+        kind = var.kind if var else {"O": "str", "b": "bool"}.get(dt.kind, "float")
+        if kind == "str":
+            enc[str(name)] = {}  # variable-length strings take no compression filter
+        elif kind == "maskint":
+            enc[str(name)] = {"dtype": "int32", "_FillValue": FILL_INT, "zlib": True}
+        elif kind == "float":
+            enc[str(name)] = {"_FillValue": FILL_FLOAT, "zlib": True}
+        elif kind == "flag":
+            enc[str(name)] = {"dtype": "int8", "_FillValue": None, "zlib": True}  # never missing
+        else:
+            enc[str(name)] = {"zlib": True}
+    for name in ds.coords:
+        if ds[name].dtype.kind == "f":
+            enc[str(name)] = {"_FillValue": None}  # coordinates are never missing
+    return enc
+
+
+def open_results(path: str | os.PathLike[str]) -> xr.Dataset:
+    """Open a results file fully into memory (the file is closed afterwards)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"no such results file: {p}")
+    try:
+        with xr.open_dataset(p, engine="netcdf4") as ds:
+            return ds.load()
+    except OSError as exc:
+        raise ValueError(f"{p} is not a readable NetCDF file: {exc}") from None
+
+
+# --------------------------------------------------------------------------- counts
+
+
+def summarize(ds: xr.Dataset, outcomes: Any = None) -> dict[str, int]:
+    """Counts of a results dataset: ``points``, ``failed``, and points by outcome when known.
+
+    The outcomes are the dataset's ``outcome`` variable, or ``outcomes`` (names, one per point)
+    for a dataset that does not store it; without either, only ``points`` and ``failed``.
+    """
+    failed = ds["failed"].values.astype(bool)
+    out = {"points": int(failed.size), "failed": int(failed.sum())}
+    if outcomes is None and "outcome" in ds:
+        outcomes = outcome_names(ds["outcome"])
+    if outcomes is not None:
+        out.update(outcome_counts(outcomes))
+    return out
+
+
+# --------------------------------------------------------------------------- JSON
+
+
+def jsonable(a: Any) -> Any:
+    """Nested lists of plain Python values; NaN and ±inf become None."""
+    arr = np.asarray(a)
+    if arr.dtype.kind == "f":
+        obj = arr.astype(object)
+        obj[~np.isfinite(arr)] = None
+        return obj.tolist()
+    if arr.dtype.kind in "iub":
+        return arr.tolist()
+    if arr.dtype.kind == "c":
+        raise ValueError("complex values cannot be written as JSON")
+    if arr.dtype.kind == "M":
+        return np.datetime_as_string(arr).tolist()
+    return np.vectorize(lambda v: None if v is None else str(v), otypes=[object])(arr).tolist()
+
+
+def json_number(x: Any) -> float | int | None:
+    """One number, JSON-safe: ``None`` for missing or non-finite, an int when it is whole."""
+    if x is None:
+        return None
+    v = float(x)
+    if not math.isfinite(v):
+        return None
+    return int(v) if v.is_integer() and abs(v) < 2**53 else v
+
+
+def json_text(payload: Any, **kwargs: Any) -> str:
+    """``json.dumps`` that refuses NaN: one that slipped through is a bug, never a result."""
+    return json.dumps(payload, allow_nan=False, **kwargs)

@@ -1,0 +1,235 @@
+"""The one registry of axes and result variables: units, long names, symbols, groups, kinds.
+
+Every place that names an axis or a result variable reads it here: the study schema (which
+axes exist, in which order), the dataset (CF ``units`` and ``long_name``, how each variable is
+stored), the plots (symbols for labels), the routes (default axes) and the regression suite
+(which variables may be compared).
+
+How a point ended is ``outcome``: a CF flag variable (int8, ``flag_values`` 0…4 and
+``flag_meanings`` "linear periodic irregular unsettled failed", the order of
+``worker.solvers.settings.OUTCOMES``), never missing. Records carry it as a string, chunk files
+and datasets as its flag value; :func:`outcome_names` reads it back as strings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from worker.physical import PhysicalCell
+from worker.solvers.settings import OUTCOMES
+
+__all__ = [
+    "AXES",
+    "FREQUENCY_AXES",
+    "MODEL_AXES",
+    "OUTCOMES",
+    "PHYSICAL_AXES",
+    "PHYSICAL_FIELDS",
+    "VARIABLES",
+    "AxisInfo",
+    "Variable",
+    "axis_symbol",
+    "default_x",
+    "outcome_attrs",
+    "outcome_codes",
+    "outcome_counts",
+    "outcome_names",
+]
+
+
+# --------------------------------------------------------------------------- axes
+
+# Canonical axis order (the dataset's dimension order, independent of the file's key order).
+# γ_r is last so that a chunk of consecutive points is a piece of one spectrum.
+MODEL_AXES: tuple[str, ...] = ("gap", "g1", "g2", "theta", "sigma", "gamma_s", "xi", "gamma_r")
+# The SI fields are PhysicalCell's own, so the study schema cannot drift from the cell.
+PHYSICAL_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PhysicalCell))
+PHYSICAL_AXES: tuple[str, ...] = (*PHYSICAL_FIELDS, "frequency_hz")
+# Axes a spectrum runs along (the x of a transmittance plot or a bandgap map), preferred first.
+FREQUENCY_AXES: tuple[str, ...] = ("gamma_r", "frequency_hz")
+
+
+@dataclass(frozen=True)
+class AxisInfo:
+    """What a coordinate is: CF ``units`` and ``long_name``, and how figures label it."""
+
+    units: str
+    long_name: str
+    symbol: str = ""  # in labels and legends ("" = the name itself)
+    definition: str = ""  # shown after the symbol in axis labels: "γ_r = Ω/ω_b"
+    label: str = ""  # an axis label used instead of symbol and definition ("frequency")
+
+
+AXES: dict[str, AxisInfo] = {
+    "gamma_r": AxisInfo("1", "excitation frequency gamma_r = Omega / omega_b", "γ_r", "Ω/ω_b"),
+    "gap": AxisInfo("1", "clearance to both stops g1 = g2, in units of B", "g̃", "g̃₁ = g̃₂"),
+    "g1": AxisInfo("1", "clearance to stop 1, in units of B", "g̃₁"),
+    "g2": AxisInfo("1", "clearance to stop 2, in units of B", "g̃₂"),
+    "theta": AxisInfo("1", "mass ratio theta = rho A l / m_o", "θ"),
+    "sigma": AxisInfo("1", "beam stiffness parameter sigma = EI / (rho A l^4 omega_b^2)", "σ"),
+    "gamma_s": AxisInfo("1", "inverse mass frequency gamma_s = omega_b / omega_m", "γ_s",
+                        "ω_b/ω_m"),
+    "xi": AxisInfo("1", "damping ratio xi", "ξ"),
+    "frequency_hz": AxisInfo("Hz", "excitation frequency", "f", label="frequency"),
+    "length_m": AxisInfo("m", "beam free length"),
+    "width_m": AxisInfo("m", "beam width"),
+    "thickness_m": AxisInfo("m", "beam thickness"),
+    "density_kg_m3": AxisInfo("kg m-3", "beam density"),
+    "youngs_modulus_pa": AxisInfo("Pa", "beam Young's modulus"),
+    "outer_mass_kg": AxisInfo("kg", "outer mass"),
+    "spring_n_m": AxisInfo("N m-1", "spring stiffness"),
+    "damping_ratio": AxisInfo("1", "damping ratio of the outer dashpot"),
+    "gap_m": AxisInfo("m", "clearance to both stops"),
+    "gap1_m": AxisInfo("m", "clearance to stop 1"),
+    "gap2_m": AxisInfo("m", "clearance to stop 2"),
+    "base_amplitude_m": AxisInfo("m", "base displacement amplitude U_g"),
+    "base_acceleration_m_s2": AxisInfo("m s-2", "base acceleration amplitude"),
+    "stop": AxisInfo("1", "stop index (1 or 2)", "stop"),
+}  # fmt: skip
+
+
+def axis_symbol(name: str) -> str:
+    """The symbol of an axis in labels and legends (its name when it has none)."""
+    info = AXES.get(name)
+    return info.symbol if info is not None and info.symbol else name
+
+
+def default_x(dims: Iterable[Any]) -> str | None:
+    """The frequency axis among ``dims`` (``gamma_r``, else ``frequency_hz``), or None."""
+    present = {str(d) for d in dims}
+    return next((a for a in FREQUENCY_AXES if a in present), None)
+
+
+# --------------------------------------------------------------------------- result variables
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A result variable: the outputs group that stores it, how it is stored, CF attributes."""
+
+    group: str  # outputs group ("" = always stored)
+    kind: str  # float | int | maskint | bool | str | flag (int8 CF flag of OUTCOMES)
+    units: str
+    long_name: str
+    mask: bool = True  # missing where the point failed
+
+
+# Result variables, in the order they appear in the dataset.
+VARIABLES: dict[str, Variable] = {
+    "transmittance_db": Variable(
+        "transmittance", "float", "dB",
+        "transmittance Gamma = 20 log10(A_s / (theta gamma_s)) (Eq. 32); the mean over "
+        "measurement windows for irregular and unsettled points",
+    ),
+    "transmittance_db_se": Variable(
+        "transmittance", "float", "dB",
+        "standard error of the transmittance of an irregular or unsettled point (batch means "
+        "over measurement windows); missing for linear and periodic points",
+    ),
+    "amplitude": Variable(
+        "transmittance", "float", "1",
+        "displacement amplitude A_s of the outer mass in units of B = U_g / (theta gamma_s)",
+    ),
+    "theta_eff": Variable(
+        "effective_mass", "float", "1",
+        "effective mass ratio from first harmonics at gamma_r (Eq. 35)",
+    ),
+    "theta_eff_slope": Variable(
+        "effective_mass", "float", "1",
+        "effective mass ratio from the least-squares slope of the velocity phase portrait, "
+        "(kappa - theta <s_b_dot s_dot> / <s_dot^2>) / (1 + theta); missing if undefined",
+    ),
+    "outcome": Variable(
+        "response", "flag", "1",
+        "how the point ended: linear (closed-form steady state, impact-free), periodic "
+        "(confirmed orbit with impacts), irregular (converged window statistics), unsettled "
+        "(period budget ran out first) or failed",
+        mask=False,
+    ),
+    "response_period": Variable(
+        "response", "maskint", "1",
+        "response period in excitation periods (1 = linear, p = periodic orbit, "
+        "0 = irregular or unsettled)",
+    ),
+    "impacts_per_period": Variable(
+        "response", "float", "1", "impacts per excitation period at stop"
+    ),
+    "floquet_multiplier": Variable(
+        "response", "float", "1",
+        "estimate of the modulus of the dominant Floquet multiplier of the steady response "
+        "(linear and periodic points; missing otherwise)",
+    ),
+    "periods": Variable("response", "int", "1", "excitation periods simulated", mask=False),
+    "steps": Variable("response", "int", "1", "time steps taken", mask=False),
+    "peak_impulse": Variable(
+        "contact", "float", "1", "largest contact impulse (non-dimensional)"
+    ),
+    "contact_steps": Variable(
+        "contact", "int", "1", "time steps that needed a contact solve", mask=False
+    ),
+    "coarse_steps": Variable(
+        "contact", "int", "1", "free-flight coarse steps taken whole (exponential)", mask=False
+    ),
+    "steady_period": Variable(
+        "contact", "maskint", "1", "period index at which the steady state was detected"
+    ),
+    "failed": Variable("", "bool", "1", "point failed (see reason); its results are missing",
+                       mask=False),
+    "reason": Variable("", "str", "1", "why the point failed or is unsettled, or a caveat of an "
+                       "irregular point; empty otherwise", mask=False),
+    "wall_s": Variable("", "float", "s", "wall-clock time of the point's kernel", mask=False),
+}  # fmt: skip
+
+
+# --------------------------------------------------------------------------- the outcome flag
+
+
+def outcome_attrs() -> dict[str, Any]:
+    """The CF flag attributes of ``outcome`` (flag values are the indices of ``OUTCOMES``)."""
+    return {
+        "flag_values": np.arange(len(OUTCOMES), dtype=np.int8),
+        "flag_meanings": " ".join(OUTCOMES),
+    }
+
+
+def outcome_codes(names: Iterable[Any]) -> np.ndarray:
+    """Flag values (int8) of outcome names; an unknown name is a ``ValueError``."""
+    index = {k: i for i, k in enumerate(OUTCOMES)}
+    out = []
+    for n in names:
+        try:
+            out.append(index[str(n)])
+        except KeyError:
+            raise ValueError(f"outcome must be one of {', '.join(OUTCOMES)}, got {n!r}") from None
+    return np.array(out, dtype=np.int8)
+
+
+def outcome_names(da: Any) -> np.ndarray:
+    """Outcome names (str array, same shape) of an ``outcome`` flag variable or array.
+
+    The names come from the variable's ``flag_values``/``flag_meanings`` when it has them
+    (a file read back), else from ``OUTCOMES``.
+    """
+    values = np.asarray(getattr(da, "values", da))
+    attrs = getattr(da, "attrs", {}) or {}
+    meanings = str(attrs.get("flag_meanings", "")).split()
+    flags = np.asarray(attrs.get("flag_values", np.arange(len(meanings))), dtype=np.int64).ravel()
+    table = dict(zip(flags.tolist(), meanings, strict=False)) if meanings else {}
+    if not table:
+        table = dict(enumerate(OUTCOMES))
+    codes = values.astype(np.int64)
+    out = np.full(values.shape, "", dtype=object)
+    for code, name in table.items():
+        out[codes == code] = name
+    return out.astype(str)
+
+
+def outcome_counts(names: Any) -> dict[str, int]:
+    """How many points ended with each outcome (every outcome listed, zeros included)."""
+    arr = np.asarray(names).astype(str).ravel()
+    return {k: int(np.sum(arr == k)) for k in OUTCOMES}

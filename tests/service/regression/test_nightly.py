@@ -1,0 +1,595 @@
+"""The nightly regression suite: loading, comparison, baselines, reports and the CLI.
+
+Most tests use a tiny suite written into a temporary folder and run serially (seconds). The
+shipped suite runs against the shipped baselines in one ``slow`` test.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from service.cli import main
+from service.regression.compare import compare
+from service.regression.report import NightlyReport
+from service.regression.run import run_suite
+from service.regression.spec import DEFAULT_IRREGULAR, IrregularCheck, RegressionSpec
+from service.regression.suite import SuiteError, load_suite
+from service.studies.dataset import encoding, open_results
+from service.studies.schema import parse_study
+from service.studies.variables import outcome_attrs, outcome_codes, outcome_names
+from worker.simulate import SOLVER_VERSION
+from worker.solvers.settings import OUTCOMES
+
+ROOT = Path(__file__).resolve().parents[3]
+
+TINY = """\
+name: tiny
+model: {coupling: paper, modes: 3, xi: 0.05}
+solver: {steps_per_period: 512, max_periods: 200, periodicity_tol: 1.0e-6, window: 10}
+grid:
+  gamma_r: [0.5, 1.2, 2.0, 3.0, 3.6, 4.8]
+  gap: [0.1, 0.5]
+  theta: 0.3
+  sigma: 0.05
+  gamma_s: 1.0
+regression:
+  tolerances:
+    theta_eff: {abs: 1.0e-3, rel: 1.0e-3}
+"""
+
+TINY_EULER = """\
+name: tiny-euler
+model: {coupling: full, modes: 3, xi: 0.05}
+solver: {method: euler, steps_per_period: 256, max_periods: 300, window: 10}
+grid:
+  gamma_r: [1.0, 2.0, 3.0]
+  g1: 0.1
+  g2: 0.3
+  theta: 0.3
+  sigma: 0.05
+  gamma_s: 1.0
+"""
+
+
+def _write_suite(folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "tiny.yaml").write_text(TINY, encoding="utf-8")
+    (folder / "tiny-euler.yaml").write_text(TINY_EULER, encoding="utf-8")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny suite and baselines made from it (once per module)."""
+    root = tmp_path_factory.mktemp("nightly")
+    _write_suite(root / "suite")
+    report = run_suite(
+        root / "suite",
+        root / "baselines",
+        data_dir=root / "data",
+        update_baseline=True,
+        report_dir=root / "report",
+        serial=True,
+    )
+    assert report.ok, report.to_markdown()
+    assert [s.status for s in report.studies] == ["created", "created"]
+    return root
+
+
+@pytest.fixture
+def suite(made: Path, tmp_path: Path) -> dict[str, Path]:
+    """A private copy of the tiny suite and its baselines."""
+    shutil.copytree(made / "suite", tmp_path / "suite")
+    shutil.copytree(made / "baselines", tmp_path / "baselines")
+    return {
+        "suite": tmp_path / "suite",
+        "baselines": tmp_path / "baselines",
+        "data": tmp_path / "data",
+        "report": tmp_path / "report",
+    }
+
+
+def _run(paths: dict[str, Path], **kw: Any) -> Any:
+    return run_suite(
+        paths["suite"],
+        paths["baselines"],
+        data_dir=paths["data"],
+        report_dir=paths["report"],
+        serial=True,
+        **kw,
+    )
+
+
+def _cli(paths: dict[str, Path], *extra: str) -> int:
+    return main(
+        [
+            "nightly",
+            "--suite", str(paths["suite"]),
+            "--baselines", str(paths["baselines"]),
+            "--data-dir", str(paths["data"]),
+            "--report", str(paths["report"]),
+            "--serial", "--quiet",
+            *extra,
+        ]
+    )  # fmt: skip
+
+
+def _perturb(path: Path) -> dict[str, Any]:
+    """Move one Γ by 0.01 dB and change one response period, at two linear/periodic points."""
+    ds = open_results(path)
+    steady = np.argwhere(np.isin(outcome_names(ds["outcome"]), ("linear", "periodic")))
+    (i, j), (k, m) = steady[0], steady[1]
+    old_g = float(ds["transmittance_db"].values[i, j])
+    ds["transmittance_db"].values[i, j] = old_g + 0.01
+    ds["response_period"].values[k, m] = 2.0
+    gamma_r, gap = ds["gamma_r"].values, ds["gap"].values
+    ds.to_netcdf(path, engine="netcdf4")
+    return {
+        "gamma": {"gamma_r": float(gamma_r[j]), "gap": float(gap[i]), "new": old_g},
+        "period": {"gamma_r": float(gamma_r[m]), "gap": float(gap[k])},
+    }
+
+
+# --------------------------------------------------------------------------- suite runs
+
+
+def test_suite_passes_against_its_own_baselines(suite: dict[str, Path]) -> None:
+    report = _run(suite)
+    assert report.ok, report.to_markdown()
+    assert [s.status for s in report.studies] == ["passed", "passed"]
+    assert all(not s.changes for s in report.studies)
+    data = json.loads((suite["report"] / "report.json").read_text())
+    assert data["ok"] is True and len(data["studies"]) == 2
+    md = (suite["report"] / "report.md").read_text()
+    assert "# Nightly regression: PASSED" in md
+    assert "| study | points | linear | periodic | irregular | unsettled | failed | status |" in md
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    counts = tiny.counts["new"]
+    assert counts["points"] == tiny.points == sum(counts[k] for k in OUTCOMES)
+    assert f"| tiny | {tiny.points} | {counts['linear']} | {counts['periodic']} |" in md
+    # Fresh results every run (never reused from an earlier run of the same study id).
+    assert all("/nightly/" in s.results for s in report.studies)
+
+
+def test_baseline_files_are_small_and_record_provenance(made: Path) -> None:
+    with xr.open_dataset(made / "baselines" / "tiny.nc") as ds:
+        assert set(ds.data_vars) == {
+            "transmittance_db", "theta_eff", "outcome", "response_period", "failed",
+        }  # fmt: skip
+        assert ds["outcome"].attrs["flag_meanings"] == "linear periodic irregular unsettled failed"
+        assert ds.attrs["solver_version"] == SOLVER_VERSION
+        for key in (
+            "impactcell_version", "git_commit", "solver_version", "solver_settings", "study",
+            "study_id", "baseline_created",
+        ):  # fmt: skip
+            assert ds.attrs.get(key), key
+        assert ds["transmittance_db"].encoding.get("zlib") is True
+        assert "stop" not in ds.coords
+        assert set(ds["transmittance_db"].dims) == {"gap", "gamma_r"}
+
+
+def test_perturbed_baseline_is_caught_and_reported_precisely(suite: dict[str, Path]) -> None:
+    moved = _perturb(suite["baselines"] / "tiny.nc")
+    report = _run(suite)
+    assert not report.ok
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    assert tiny.status == "failed"
+    assert {s.study: s.status for s in report.studies}["tiny-euler"] == "passed"
+    regs = tiny.regressions
+    assert len(regs) == 2, [r.to_json() for r in regs]
+    by_var = {r.variable: r for r in regs}
+
+    g = by_var["transmittance_db"]
+    assert g.kind == "moved"
+    assert g.coords["gamma_r"] == moved["gamma"]["gamma_r"]
+    assert g.coords["gap"] == moved["gamma"]["gap"]
+    assert g.new == pytest.approx(moved["gamma"]["new"], abs=1e-12)
+    assert g.old == pytest.approx(moved["gamma"]["new"] + 0.01, abs=1e-12)
+    assert g.delta == pytest.approx(0.01, abs=1e-9)
+    assert g.tolerance == "abs 0.001"
+
+    p = by_var["response_period"]
+    assert p.kind == "moved" and p.old == 2 and p.new == 1 and p.tolerance == "exact"
+    assert p.coords["gamma_r"] == moved["period"]["gamma_r"]
+    assert p.coords["gap"] == moved["period"]["gap"]
+
+    md = (suite["report"] / "report.md").read_text()
+    assert "# Nightly regression: FAILED" in md
+    row = next(line for line in md.splitlines() if "| transmittance_db | moved" in line)
+    assert f"gamma_r={moved['gamma']['gamma_r']:.8g}" in row
+    assert f"gap={moved['gamma']['gap']:.8g}" in row
+    assert f"{g.old:.9g}" in row and f"{g.new:.9g}" in row and "abs 0.001" in row
+    data = json.loads((suite["report"] / "report.json").read_text())
+    tj = next(s for s in data["studies"] if s["study"] == "tiny")
+    assert tj["status"] == "failed" and tj["regressions"] == 2
+    assert {c["variable"] for c in tj["changes"]} == {"transmittance_db", "response_period"}
+    assert _cli(suite) == 1
+
+
+def test_update_baseline_rewrites_and_reports_what_changed(suite: dict[str, Path]) -> None:
+    _perturb(suite["baselines"] / "tiny.nc")
+    before = open_results(suite["baselines"] / "tiny.nc").attrs["baseline_created"]
+    report = _run(suite, update_baseline=True)
+    assert report.ok
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    assert tiny.status == "updated"
+    assert {c.variable for c in tiny.changes} == {"transmittance_db", "response_period"}
+    md = (suite["report"] / "report.md").read_text()
+    assert "BASELINES UPDATED" in md and "Changes written to the baselines" in md
+    after = open_results(suite["baselines"] / "tiny.nc")
+    assert after.attrs["baseline_created"] >= before
+    # The rewritten baselines pass.
+    again = _run(suite)
+    assert again.ok and [s.status for s in again.studies] == ["passed", "passed"]
+
+
+def test_missing_baseline_is_reported_not_raised(suite: dict[str, Path]) -> None:
+    (suite["baselines"] / "tiny-euler.nc").unlink()
+    report = _run(suite)
+    assert not report.ok
+    status = {s.study: s for s in report.studies}
+    assert status["tiny"].status == "passed"
+    assert status["tiny-euler"].status == "missing-baseline"
+    assert "--update-baseline" in (status["tiny-euler"].error or "")
+    assert "tiny-euler.nc" in (suite["report"] / "report.md").read_text()
+    assert _cli(suite) == 1
+    assert _cli(suite, "--update-baseline") == 0
+    assert (suite["baselines"] / "tiny-euler.nc").is_file()
+    assert _cli(suite) == 0
+
+
+def test_changed_definition_needs_an_update(suite: dict[str, Path]) -> None:
+    text = TINY.replace("max_periods: 200", "max_periods: 150")
+    (suite["suite"] / "tiny.yaml").write_text(text, encoding="utf-8")
+    report = _run(suite)
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    assert tiny.status == "error" and "different study definition" in (tiny.error or "")
+    assert "solver.max_periods" in (tiny.error or "")
+
+
+def _make_old(path: Path) -> None:
+    """Rewrite a baseline as solver version 1 wrote it: no ``outcome``, version "1"."""
+    ds = open_results(path).drop_vars("outcome")
+    ds.attrs["solver_version"] = "1"
+    ds.to_netcdf(path, engine="netcdf4", encoding=encoding(ds))
+
+
+def test_baseline_of_an_older_solver_says_to_recut_it(
+    suite: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    _make_old(suite["baselines"] / "tiny.nc")
+    report = _run(suite)
+    assert not report.ok
+    tiny = {s.study: s for s in report.studies}["tiny"]
+    assert tiny.status == "error" and not tiny.regressions
+    assert "predates solver version " + SOLVER_VERSION in (tiny.error or "")
+    assert "solver version 1" in (tiny.error or "")
+    assert "impactcell nightly --update-baseline" in (tiny.error or "")
+    assert {s.study: s.status for s in report.studies}["tiny-euler"] == "passed"
+    # The old baseline's outcome is read from response_period: the counts are still there.
+    assert tiny.counts["baseline"]["points"] == tiny.points
+    md = (suite["report"] / "report.md").read_text()
+    assert "predates solver version" in md and "--update-baseline" in md
+    assert _cli(suite) == 1
+    assert "predates solver version" in capsys.readouterr().out
+    # Re-cut deliberately: written, and then it passes.
+    assert _cli(suite, "--update-baseline") == 0
+    with xr.open_dataset(suite["baselines"] / "tiny.nc") as ds:
+        assert "outcome" in ds and ds.attrs["solver_version"] == SOLVER_VERSION
+    assert _cli(suite) == 0
+
+
+def test_url_mode_runs_fresh_through_a_real_service(
+    suite: dict[str, Path], dask_address: str
+) -> None:
+    """URL mode against a real server on 127.0.0.1: passes, and every run is a fresh study."""
+    from service.api.server import ServerThread
+    from service.api.settings import Settings
+    from service.client import Client
+
+    s = Settings(host="127.0.0.1", port=0, data_dir=suite["data"] / "server",
+                 scheduler=dask_address, api_token="t0k")  # fmt: skip
+    server = ServerThread(s).start()
+    try:
+        report = _run(suite, url=server.url, token="t0k")
+        assert report.ok, report.to_markdown()
+        assert report.mode == server.url
+        assert "summary" in report.to_json() and "no regressions" in report.summary()
+        time.sleep(1.1)  # a new timestamped run folder
+        again = _run(suite, url=server.url, token="t0k")
+        assert again.ok
+        with Client(server.url, token="t0k") as c:
+            studies = c.list()
+        # Two suite runs of two studies: four studies, none served from an earlier run.
+        assert len(studies) == 4 and all(r["status"] == "finished" for r in studies)
+    finally:
+        server.stop()
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    ("block", "expected"),
+    [
+        (
+            "  tolerances:\n    transmittance_db: {absolute: 1.0e-3}\n",
+            "regression.tolerances.transmittance_db.absolute: unknown key",
+        ),
+        ("  tolerances:\n    gamma: {abs: 1.0e-3}\n", "unknown variable 'gamma'"),
+        (
+            "  tolerances:\n    theta_eff_mean: {abs: 1.0e-3}\n",
+            "unknown variable 'theta_eff_mean' (replaced by theta_eff_slope in solver version 2)",
+        ),
+        ("  tolerances:\n    outcome: {exact: true}\n", "unknown variable 'outcome'"),
+        (
+            "  tolerances:\n    response_period: {exact: true, abs: 1}\n",
+            "regression.tolerances.response_period: give exact: true or abs/rel, not both",
+        ),
+        ("  tolerances:\n    theta_eff: {}\n", "give abs and/or rel, or exact: true"),
+        ("  irregular:\n    transmittance_db: {median: 1}\n", "median: unknown key"),
+        ("  irregular:\n    response_period: {median_shift: 1}\n", "unknown variable"),
+        ("  thresholds: {}\n", "regression.thresholds: unknown key"),
+        (
+            "  irregular:\n    transmittance_db: {quantile_shift: 1, quantiles: [1.5]}\n",
+            "quantiles must be in [0, 1]",
+        ),
+    ],
+)
+def test_bad_regression_block_names_the_field(tmp_path: Path, block: str, expected: str) -> None:
+    folder = tmp_path / "suite"
+    folder.mkdir()
+    (folder / "bad.yaml").write_text(TINY.split("regression:")[0] + "regression:\n" + block)
+    with pytest.raises(SuiteError) as err:
+        load_suite(folder)
+    assert expected in str(err.value)
+    assert "bad.yaml" in str(err.value)
+
+
+def test_bad_suite_exits_2_with_a_message(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "suite"
+    folder.mkdir()
+    bad = TINY.replace("{abs: 1.0e-3, rel", "{absolute: 1.0e-3, rel")
+    (folder / "bad.yaml").write_text(bad)
+    (folder / "worse.yaml").write_text(TINY.replace("gap: [0.1, 0.5]", "gap: [0.1, -1]"))
+    paths = {"suite": folder, "baselines": tmp_path / "b", "data": tmp_path / "d",
+             "report": tmp_path / "r"}  # fmt: skip
+    assert _cli(paths) == 2
+    msg = capsys.readouterr().err
+    assert "regression.tolerances.theta_eff.absolute: unknown key" in msg
+    assert "worse.yaml: grid.gap: must be >= 0" in msg
+    assert not (tmp_path / "r").exists()  # nothing ran
+    assert _cli({**paths, "suite": tmp_path / "nowhere"}) == 2
+    assert "does not exist" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert _cli({**paths, "suite": empty}) == 2
+    assert "no study files" in capsys.readouterr().err
+
+
+def test_regression_block_does_not_change_the_study_id(tmp_path: Path) -> None:
+    folder = _write_suite(tmp_path / "suite")
+    entry = {e.stem: e for e in load_suite(folder)}["tiny"]
+    import yaml
+
+    plain = yaml.safe_load(TINY)
+    del plain["regression"]
+    assert entry.study.id == parse_study(plain).id
+    # What URL mode submits parses back to the same study.
+    assert parse_study(entry.study.canonical()).id == entry.study.id
+    assert set(entry.spec.effective_tolerances()) == {
+        "transmittance_db", "response_period", "theta_eff",
+    }  # fmt: skip
+    assert entry.spec.effective_irregular() == DEFAULT_IRREGULAR
+
+
+# --------------------------------------------------------------------------- compare()
+
+
+def _synthetic(
+    gamma: np.ndarray,
+    period: np.ndarray,
+    failed: np.ndarray | None = None,
+    outcome: list[str] | None = None,
+    **attrs: Any,
+) -> xr.Dataset:
+    """A results-like dataset; the outcome defaults to failed / periodic (period > 0) /
+    irregular (period 0)."""
+    n = gamma.size
+    failed = np.zeros(n, dtype=bool) if failed is None else failed
+    if outcome is None:
+        outcome = [
+            "failed" if f else ("periodic" if p > 0 else "irregular")
+            for f, p in zip(failed, period, strict=True)
+        ]
+    g = np.where(failed, np.nan, gamma)
+    rp = np.where(failed, np.nan, period).astype(float)
+    return xr.Dataset(
+        {
+            "transmittance_db": ("gamma_r", g),
+            "outcome": ("gamma_r", outcome_codes(outcome), outcome_attrs()),
+            "response_period": ("gamma_r", rp),
+            "failed": ("gamma_r", failed),
+        },
+        coords={"gamma_r": np.linspace(4.0, 5.0, n), "gap": 0.1},
+        attrs=attrs,
+    )
+
+
+def test_irregular_distribution_check_catches_a_shift() -> None:
+    rng = np.random.default_rng(6)
+    n = 40
+    base = rng.uniform(-25.0, -18.0, n)
+    irregular = np.zeros(n)
+    old = _synthetic(base, irregular)
+    # Unshifted: every point moves by up to ±1.5 dB (a chaotic response), the median not at all.
+    noise = rng.uniform(-1.5, 1.5, n)
+    noise -= np.median(noise)
+    same = compare(_synthetic(base + noise, irregular), old)
+    assert same.status == "passed", [d.to_json() for d in same.distribution]
+    assert {d.check for d in same.distribution} == {"median_shift", "quantile_shift"}
+    assert all(d.n_paired == n for d in same.distribution)
+    # Shifted by 1.5 dB: caught by both checks, and no pointwise change is reported.
+    shifted = compare(_synthetic(base + noise + 1.5, irregular), old)
+    assert shifted.status == "failed"
+    assert {d.check for d in shifted.failed_checks} == {"median_shift", "quantile_shift"}
+    assert not shifted.changes
+    med = next(d for d in shifted.distribution if d.check == "median_shift")
+    assert med.value == pytest.approx(1.5)
+    # A two-sample KS test on request.
+    spec = RegressionSpec(irregular={"transmittance_db": IrregularCheck(ks_pvalue=0.01)})
+    assert compare(_synthetic(base + noise, irregular), old, spec).status == "passed"
+    far = compare(_synthetic(base + 8.0, irregular), old, spec)
+    assert {d.check for d in far.failed_checks} == {"ks_pvalue"}
+
+
+def test_irregular_check_skips_too_few_points() -> None:
+    g = np.array([-20.0, -21.0, -22.0, -23.0])
+    rp = np.array([1, 0, 0, 1])
+    out = compare(_synthetic(g + [0, 3, 3, 0], rp), _synthetic(g, rp))
+    assert out.status == "passed"
+    assert all(d.skipped and d.value is None for d in out.distribution)
+
+
+def test_outcome_class_changes_are_regressions() -> None:
+    g = np.array([-10.0, -11.0, -12.0, -13.0, -14.0, -15.0, -16.0, -17.0])
+    rp = np.array([1, 1, 2, 1, 1, 1, 0, 0])
+    old = _synthetic(
+        g, rp, failed=np.array([0, 0, 0, 0, 1, 0, 0, 0], dtype=bool),
+        outcome=["periodic", "periodic", "periodic", "periodic", "failed", "linear", "irregular",
+                 "unsettled"],
+    )  # fmt: skip
+    new = _synthetic(
+        g + [0.0005, 3, 0, 0, 0, 0, 0, 5],  # within 1e-3 dB; the rest are not compared
+        np.array([1, 0, 2, 1, 3, 1, 0, 0]),
+        failed=np.array([0, 0, 0, 1, 0, 0, 0, 0], dtype=bool),
+        outcome=["linear", "irregular", "periodic", "failed", "periodic", "periodic",
+                 "unsettled", "unsettled"],
+    )  # fmt: skip
+    new["reason"] = ("gamma_r", np.array(["", "", "", "euler scheme is unstable", "", "",
+                                          "the budget ran out", ""], object))  # fmt: skip
+    out = compare(new, old, study="synthetic")
+    # Linear <-> periodic is one class (compared pointwise): points 0 and 5 did not move.
+    moved = {round(c.coords["gamma_r"], 6): c for c in out.changes}
+    step = 1.0 / 7
+    assert sorted(moved) == [round(4.0 + k * step, 6) for k in (1, 3, 4, 6)]
+    assert all(c.kind == "outcome" and c.variable == "outcome" for c in out.changes)
+    assert all(c.regression for c in out.changes)
+    pairs = [(c.old, c.new) for c in out.changes]
+    assert pairs == [
+        ("periodic", "irregular"), ("periodic", "failed"), ("failed", "periodic"),
+        ("irregular", "unsettled"),
+    ]  # fmt: skip
+    assert out.changes[1].note == "euler scheme is unstable"
+    assert out.changes[3].note == "the budget ran out"
+    assert out.status == "failed" and len(out.regressions) == 4
+    assert any("1 points unsettled in both runs" in n for n in out.notes)
+    md = NightlyReport([out], "s", "b", "embedded", False, "now").to_markdown()
+    assert "| synthetic | gamma_r=4.1428571 | outcome | outcome | periodic | irregular | - |" in md
+
+    # Missing values: missing == missing, missing vs value is a change.
+    g2 = g.copy()
+    spec = RegressionSpec.model_validate({"tolerances": {"transmittance_db": {"abs": 1e-3}}})
+    a, b = _synthetic(g, rp), _synthetic(g2, rp)
+    a["transmittance_db"].values[0] = np.nan
+    b["transmittance_db"].values[0] = np.nan
+    assert compare(b, a, spec).status == "passed"
+    b["transmittance_db"].values[0] = -10.0
+    moved_pts = compare(b, a, spec).regressions
+    assert len(moved_pts) == 1 and moved_pts[0].old is None and moved_pts[0].new == -10.0
+
+
+def test_an_old_baseline_is_read_not_crashed_on() -> None:
+    g = np.array([-10.0, -11.0, -12.0])
+    rp = np.array([1, 0, 1])
+    new = _synthetic(g, rp, solver_version=SOLVER_VERSION)
+    old = _synthetic(g + [0.0, 0.0, 0.5], rp, solver_version="1").drop_vars("outcome")
+    out = compare(new, old, study="old")
+    assert out.status == "error" and "predates solver version" in (out.error or "")
+    assert "--update-baseline" in (out.error or "")
+    # What differs is listed for information only (period 0 read as irregular: same class).
+    assert [(c.kind, c.variable) for c in out.changes] == [("moved", "transmittance_db")]
+    assert not out.regressions and not out.distribution
+    assert out.counts["baseline"]["irregular"] == 1 and out.counts["baseline"]["periodic"] == 2
+    # Same version on both sides but no outcome in the baseline: still not comparable.
+    out = compare(new, old.assign_attrs(solver_version=SOLVER_VERSION))
+    assert out.status == "error" and "has no outcome variable" in (out.error or "")
+
+
+def test_relative_tolerance() -> None:
+    g = np.array([-10.0, -100.0])
+    rp = np.array([1, 1])
+    spec = RegressionSpec.model_validate({"tolerances": {"transmittance_db": {"rel": 1e-3}}})
+    new = _synthetic(g * (1 + 5e-4) + [0, 0], rp)
+    assert compare(new, _synthetic(g, rp), spec).status == "passed"
+    new = _synthetic(g * (1 + 2e-3), rp)
+    assert len(compare(new, _synthetic(g, rp), spec).regressions) == 2
+
+
+def test_definition_check_tolerates_new_default_keys() -> None:
+    g, rp = np.array([-10.0, -11.0]), np.array([1, 1])
+    base = {"name": "a", "solver": {"max_periods": 200}}
+    old = _synthetic(g, rp, study=json.dumps(base))
+    added = {"name": "b", "solver": {"max_periods": 200, "new_option": True}}
+    out = compare(_synthetic(g, rp, study=json.dumps(added)), old)
+    assert out.status == "passed" and any("solver.new_option" in n for n in out.notes)
+    changed = {"name": "a", "solver": {"max_periods": 300}}
+    out = compare(_synthetic(g, rp, study=json.dumps(changed)), old)
+    assert out.status == "error" and "solver.max_periods" in (out.error or "")
+
+
+def test_grid_mismatch_is_an_error() -> None:
+    g = np.array([-10.0, -11.0, -12.0])
+    old = _synthetic(g, np.ones(3))
+    new = _synthetic(np.r_[g, -13.0], np.ones(4))
+    out = compare(new, old)
+    assert out.status == "error" and "gamma_r" in (out.error or "")
+
+
+# --------------------------------------------------------------------------- the shipped suite
+
+
+def test_shipped_suite_covers_what_it_claims() -> None:
+    entries = load_suite(ROOT / "studies" / "nightly")
+    studies = [e.study for e in entries]
+    assert {s.model.coupling for s in studies} == {"paper", "full"}
+    # Both time-stepping solvers set explicitly; table1 runs on the default (event).
+    assert {s.solver.method for s in studies} == {"event", "exponential", "euler"}
+    assert any(s.is_physical for s in studies)
+    axes = [s.axes() for s in studies]
+    assert any("g1" in a and set(a["g1"]) != set(a["g2"]) for a in axes)  # asymmetric gaps
+    zero = [np.any(a.get("gap", a.get("g1", np.ones(1))) == 0) for a in axes]
+    assert any(zero)
+    total = sum(s.size for s in studies)
+    assert 1000 <= total <= 5000
+    for e in entries:  # every study has a baseline made from its current definition
+        path = ROOT / "studies" / "baselines" / f"{e.stem}.nc"
+        assert path.is_file(), path
+        with xr.open_dataset(path) as ds:
+            assert ds.attrs["solver_version"] == SOLVER_VERSION, (
+                f"{path.name} predates solver version {SOLVER_VERSION}: re-cut the baselines "
+                "with `impactcell nightly --update-baseline`"
+            )
+            assert json.loads(ds.attrs["study"]) == e.study.canonical()
+
+
+@pytest.mark.slow
+def test_shipped_suite_passes_against_shipped_baselines(tmp_path: Path) -> None:
+    report = run_suite(
+        ROOT / "studies" / "nightly",
+        ROOT / "studies" / "baselines",
+        data_dir=tmp_path / "data",
+        report_dir=tmp_path / "report",
+        workers=2,
+    )
+    assert report.ok, report.to_markdown()

@@ -1,0 +1,291 @@
+"""The runner on a real LocalCluster, resume after SIGKILL, and the run/show CLI.
+
+"Identical" results: every coordinate, every data variable except ``wall_s`` and every global
+attribute except ``created`` are equal (``xr.testing.assert_identical``). ``wall_s`` is a
+measured time and ``created`` a clock reading, so they differ between any two runs; everything
+computed is deterministic and must match exactly, whatever the chunking, the worker or the
+interruption.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import xarray as xr
+
+from service.cli import main
+from service.studies import runner
+from service.studies.chunks import StudyStore
+from service.studies.dataset import open_results
+from service.studies.runner import make_client, run_study
+from service.studies.schema import load_study, parse_study
+from service.studies.variables import outcome_names
+from tests.service.helpers import comparable
+from worker.simulate import simulate_chunk
+from worker.solvers.settings import OUTCOMES
+
+ROOT = Path(__file__).resolve().parents[3]
+SOLVER = {"steps_per_period": 512, "max_periods": 200, "periodicity_tol": 1e-6, "window": 10}
+
+
+def _study(name: str = "runner", **extra: Any) -> Any:
+    d = {
+        "name": name,
+        "solver": SOLVER,
+        "grid": {
+            "gamma_r": {"start": 0.3, "stop": 4.0, "num": 24},
+            "gap": [0.1, 0.6],
+            "theta": 0.3,
+            "sigma": 0.05,
+            "gamma_s": 1.0,
+        },
+    }
+    d.update(extra)
+    return parse_study(d)
+
+
+@pytest.fixture(scope="module")
+def client() -> Iterator[Any]:
+    from dask.distributed import Client, LocalCluster
+
+    cluster = LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=40
+    )
+    c = Client(cluster)
+    try:
+        yield c
+    finally:
+        c.close()
+        cluster.close()
+
+
+def test_local_cluster_matches_serial(tmp_path: Path, client: Any) -> None:
+    study = _study()
+    seen: list[tuple[int, int]] = []
+    dist = run_study(
+        study,
+        tmp_path / "d",
+        client=client,
+        chunk_size=5,
+        progress=lambda d, t: seen.append((d, t)),
+    )
+    serial = run_study(study, tmp_path / "s", serial=True, chunk_size=study.size)
+    assert dist.points == serial.points == study.size == dist.computed
+    assert seen[0] == (0, study.size) and seen[-1] == (study.size, study.size)
+    a, b = open_results(dist.path), open_results(serial.path)
+    xr.testing.assert_identical(comparable(a), comparable(b))
+    # Chunk files are gone once the results file holds them.
+    assert not list(StudyStore(tmp_path / "d", study).chunk_dir.glob("*.npz"))
+
+
+def test_failed_points_do_not_fail_the_study(tmp_path: Path, client: Any) -> None:
+    # Euler at 256 steps a period is unstable for γ_r = 0.2 (Δτ·ω̃_max > 2), fine for γ_r >= 1.
+    study = parse_study(
+        {
+            "name": "fails",
+            "solver": {"method": "euler", "steps_per_period": 256, "max_periods": 60, "window": 5},
+            "grid": {
+                "gamma_r": [0.2, 1.0, 2.0],
+                "gap": 0.3,
+                "theta": 0.3,
+                "sigma": 0.05,
+                "gamma_s": 1.0,
+            },
+        }  # fmt: skip
+    )
+    s = run_study(study, tmp_path, client=client, chunk_size=2)
+    ds = open_results(s.path)
+    assert s.failed == 1 and bool(ds["failed"].sel(gamma_r=0.2))
+    assert "unstable" in str(ds["reason"].sel(gamma_r=0.2).values)
+    assert not ds["failed"].sel(gamma_r=[1.0, 2.0]).any()
+
+
+def test_resume_computes_only_missing(tmp_path: Path, client: Any) -> None:
+    study = _study("resume")
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    solver = study.solver.settings().__dict__
+    for a, b in [(0, 7), (20, 30)]:
+        store.write_chunk(a, b, simulate_chunk(study.points(a, b), solver))
+    s = run_study(study, tmp_path, client=client, chunk_size=8)
+    assert s.computed == study.size - 17
+    ref = run_study(study, tmp_path / "ref", serial=True)
+    xr.testing.assert_identical(
+        comparable(open_results(s.path)), comparable(open_results(ref.path))
+    )
+    again = run_study(study, tmp_path, client=client)
+    assert again.reused and again.computed == 0
+
+
+def test_quick_study_runs(tmp_path: Path, client: Any) -> None:
+    study = load_study(ROOT / "studies" / "quick.yaml")
+    assert study.solver.method == "event"  # the worker's default, not set in the file
+    s = run_study(study, tmp_path, client=client)
+    assert s.points == study.size and s.failed == 0
+    ds = open_results(s.path)
+    assert ds["transmittance_db"].notnull().all()
+    assert sum(s.outcomes.values()) == study.size
+
+
+def test_summary_counts_outcomes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # A short budget: some points end irregular, some run out of periods (unsettled).
+    study = parse_study(
+        {
+            "name": "outcomes",
+            "solver": {"steps_per_period": 256, "max_periods": 120, "window": 5},
+            "grid": {"gamma_r": [0.5, 1.0, 2.2, 4.5], "gap": [0.1, 0.5], "theta": 0.3,
+                     "sigma": 0.05, "gamma_s": 1.0},
+        }
+    )  # fmt: skip
+    truth = [r["outcome"] for r in simulate_chunk(study.points(0, study.size),
+                                                   study.solver.settings().__dict__)]  # fmt: skip
+    want = {k: truth.count(k) for k in OUTCOMES}
+    assert want["irregular"] and want["unsettled"], truth  # the grid covers both
+    s = run_study(study, tmp_path, serial=True)
+    assert s.outcomes == want
+    assert (s.irregular, s.unsettled, s.failed) == (
+        want["irregular"], want["unsettled"], want["failed"],
+    )  # fmt: skip
+    # Unsettled points have period 0 too, but they are not irregular.
+    ds = open_results(s.path)
+    period0 = int((ds["response_period"] == 0).sum())
+    assert period0 == want["irregular"] + want["unsettled"] > s.irregular
+    assert list(outcome_names(ds["outcome"]).ravel()) == truth
+    # A reused results file counts the same, from the dataset.
+    again = run_study(study, tmp_path, serial=True)
+    assert again.reused and again.outcomes == want and again.unsettled == want["unsettled"]
+    # The command line reports both counts.
+    assert main(["run", str(_study_file(tmp_path, study)), "--out", str(tmp_path), "--json",
+                 "--serial", "--no-progress"]) == 0  # fmt: skip
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["irregular"] == want["irregular"]
+    assert summary["unsettled"] == want["unsettled"]
+    assert main(["show", str(s.path)]) == 0
+    out = capsys.readouterr().out
+    assert f"irregular {want['irregular']:,}" in out and f"unsettled {want['unsettled']:,}" in out
+
+
+def _study_file(folder: Path, study: Any) -> Path:
+    path = folder / "study.json"
+    path.write_text(study.canonical_json())
+    return path
+
+
+def test_embedded_cluster_starts_after_the_parent_warmed_up(monkeypatch) -> None:
+    """The parent compiles (or loads) the kernels first, so its workers only load the cache."""
+    import dask.distributed
+
+    calls: list[str] = []
+    monkeypatch.setattr(runner.simulate, "warm_up", lambda m=None: calls.append(f"warm {m}"))
+
+    class FakeCluster:
+        def __init__(self, **kw: Any) -> None:
+            calls.append(f"cluster {kw['n_workers']}")
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", FakeCluster)
+    monkeypatch.setattr(dask.distributed, "Client", lambda cluster, **kw: ("client", cluster))
+    monkeypatch.delenv("IMPACTCELL_SCHEDULER", raising=False)
+    make_client(None, 2, method="euler")
+    make_client(None, 1)
+    assert calls == ["warm euler", "cluster 2", "warm event", "cluster 1"]
+    # A scheduler elsewhere: its workers do not share this machine's cache; nothing to warm.
+    calls.clear()
+    monkeypatch.setattr(dask.distributed, "Client", lambda address, **kw: ("client", address))
+    make_client("tcp://127.0.0.1:1", None)
+    assert calls == []
+
+
+def test_workers_get_one_blas_thread() -> None:
+    import dask
+
+    runner._worker_environ()
+    env = dask.config.get("distributed.nanny.pre-spawn-environ")
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        assert int(env[var]) == 1, var
+
+
+def test_worker_warm_up_uses_the_default_method(client: Any) -> None:
+    import inspect
+
+    assert inspect.signature(runner.warm_up).parameters["method"].default == "event"
+    runner.warm_up(client)  # compiles or loads in every worker; returns once all are done
+    cached = client.run(lambda: __import__("worker.simulate").simulate._warm.copy())
+    assert all("event" in methods for methods in cached.values())
+
+
+def _chunk_files(folder: Path) -> list[Path]:
+    return list(folder.glob("*.npz")) if folder.is_dir() else []
+
+
+def test_sigkill_and_resume(tmp_path: Path) -> None:
+    study_file = tmp_path / "kill.yaml"
+    study_file.write_text(
+        "name: kill\n"
+        "solver: {steps_per_period: 1024, max_periods: 400}\n"
+        "grid: {gamma_r: {start: 0.3, stop: 5.0, num: 60}, gap: [0.1, 0.4, 0.8], theta: 0.3,\n"
+        "       sigma: 0.05, gamma_s: 1.0}\n"
+    )
+    study = load_study(study_file)
+    out = tmp_path / "data"
+    store = StudyStore(out, study)
+    cmd = [sys.executable, "-m", "service.cli", "run", str(study_file), "--out", str(out)]
+    opts = ["--workers", "1", "--chunk-size", "4", "--no-progress", "--json"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        cmd + opts, cwd=ROOT, env=env, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while len(_chunk_files(store.chunk_dir)) < 3:
+            assert proc.poll() is None, proc.stderr.read().decode() if proc.stderr else ""
+            assert time.monotonic() < deadline, "no chunk files appeared"
+            time.sleep(0.02)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        # The embedded cluster's worker processes are in the killed process's group.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert proc.returncode == -signal.SIGKILL
+    assert not store.results_path.exists(), "the study finished before it was killed"
+    done = store.done_mask().sum()
+    assert 0 < done < study.size
+
+    rerun = subprocess.run(
+        cmd + opts, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=True
+    )
+    summary = json.loads(rerun.stdout)
+    assert summary["computed"] == study.size - done
+    resumed = open_results(store.results_path)
+
+    ref = run_study(study, tmp_path / "ref", serial=True)
+    xr.testing.assert_identical(comparable(resumed), comparable(open_results(ref.path)))
+
+
+def test_cli_show_and_bad_study(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    study = _study("cli")
+    s = run_study(study, tmp_path, serial=True)
+    assert main(["show", str(s.path)]) == 0
+    out = capsys.readouterr().out
+    assert study.id in out and "transmittance_db" in out and "outcome" in out
+    assert re.search(r"points\s+48  failed 0  linear \d+  periodic \d+  irregular \d+  "
+                     r"unsettled \d+", out)  # fmt: skip
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\nnope: 1\ngrid: {gamma_r: -1}\n")
+    assert main(["run", str(bad), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "nope: unknown key" in err and "grid.gamma_r" in err and "grid.theta" in err
+    assert main(["show", str(tmp_path / "missing.nc")]) == 2

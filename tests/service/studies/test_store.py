@@ -1,0 +1,277 @@
+"""The results store (service.studies.chunks) and datasets (service.studies.dataset): chunk
+files, atomic writes, collation, NetCDF round trip."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+
+from service.studies.chunks import StudyStore, atomic_write
+from service.studies.dataset import (
+    FILL_FLOAT,
+    PENDING,
+    open_results,
+    results_from_records,
+    summarize,
+)
+from service.studies.schema import parse_study
+from service.studies.variables import outcome_names
+from worker.simulate import simulate_chunk
+from worker.solvers.settings import OUTCOMES
+
+SOLVER = {"steps_per_period": 256, "max_periods": 120, "window": 5}
+
+
+def _study(**grid: Any) -> Any:
+    g = {"gamma_r": [0.5, 1.0, 2.2], "gap": [0.1, 0.5], "theta": 0.3, "sigma": 0.05}
+    g.update(grid)
+    g.setdefault("gamma_s", 1.0)
+    return parse_study({"name": "store", "solver": SOLVER, "grid": g})
+
+
+def _records(study: Any) -> list[dict[str, Any]]:
+    return simulate_chunk(study.points(0, study.size), study.solver.settings().__dict__)
+
+
+def _fill(store: StudyStore, records: list[dict[str, Any]], size: int) -> None:
+    for s in range(0, len(records), size):
+        store.write_chunk(s, min(s + size, len(records)), records[s : s + size])
+
+
+def _with_failure(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    from worker.simulate import SolverSettings, failed_result
+
+    out = list(records)
+    out[1] = failed_result(SolverSettings(**SOLVER), "test: point made to fail")
+    return out
+
+
+def test_netcdf_round_trip_with_failed_point(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _with_failure(_records(study))
+    _fill(store, records, 4)
+    ds = results_from_records(study, store.collect())
+    path = store.write_results(ds)
+    back = open_results(path)
+    xr.testing.assert_identical(ds, back)
+
+    # The failed point: flagged, with a reason, and its measured values missing.
+    flat = back.stack(p=list(study.dims()))
+    assert bool(flat["failed"].values[1]) and "made to fail" in str(flat["reason"].values[1])
+    for v in ("transmittance_db", "theta_eff", "response_period", "amplitude"):
+        assert np.isnan(flat[v].values[1])
+    assert not flat["failed"].values[[0, 2, 3, 4, 5]].any()
+
+    # On disk: no NaN anywhere, the fill value where missing, compression on.
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        t = nc["transmittance_db"][:]
+        assert not np.isnan(t).any()
+        assert t.ravel()[1] == FILL_FLOAT
+        assert nc["response_period"][:].ravel()[1] == -1
+        assert nc["transmittance_db"].filters()["zlib"]
+        assert nc["failed"][:].ravel()[1] == 1
+
+
+def test_outcome_flag_round_trips_with_its_cf_attributes(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _with_failure(_records(study))
+    names = [r["outcome"] for r in records]
+    # The grid covers a steady point, an irregular one and a failed one (else the test is moot).
+    assert {"periodic", "irregular", "failed"} <= set(names), names
+    _fill(store, records, 4)
+    path = store.write_results(results_from_records(study, store.collect()))
+
+    back = open_results(path)
+    out = back["outcome"]
+    assert out.dtype == np.int8 and out.dims == ("gap", "gamma_r")
+    assert out.attrs["flag_meanings"] == " ".join(OUTCOMES)
+    assert OUTCOMES == ("linear", "periodic", "irregular", "unsettled", "failed")
+    np.testing.assert_array_equal(out.attrs["flag_values"], np.arange(5, dtype=np.int8))
+    assert {"units", "long_name"} <= set(out.attrs)
+    flat = back.stack(p=list(study.dims()))
+    assert list(outcome_names(flat["outcome"])) == names
+    # ``failed`` and the outcome agree; irregular counts as such, not as "period 0 and fine".
+    np.testing.assert_array_equal(flat["failed"].values, np.array(names) == "failed")
+    counts = summarize(back)
+    assert counts["irregular"] == names.count("irregular") and counts["failed"] == 1
+    assert sum(counts[k] for k in OUTCOMES) == study.size
+
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        v = nc["outcome"]
+        assert v.dtype == np.int8 and "_FillValue" not in v.ncattrs()  # never missing
+        assert v.getncattr("flag_meanings") == "linear periodic irregular unsettled failed"
+        np.testing.assert_array_equal(v.getncattr("flag_values"), [0, 1, 2, 3, 4])
+        np.testing.assert_array_equal(v[:].ravel(), [OUTCOMES.index(n) for n in names])
+
+
+def test_standard_error_is_a_fill_value_where_it_does_not_apply(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _with_failure(_records(study))
+    se = [r["transmittance_db_se"] for r in records]
+    assert any(x is None for x in se) and any(x is not None for x in se), se
+    for r in records:  # the worker's contract: a standard error only where Γ is a mean
+        assert (r["transmittance_db_se"] is not None) == (r["outcome"] in ("irregular",
+                                                                         "unsettled"))  # fmt: skip
+    _fill(store, records, 4)
+    path = store.write_results(results_from_records(study, store.collect()))
+    with netCDF4.Dataset(path) as nc:
+        nc.set_auto_mask(False)
+        for var in ("transmittance_db_se", "floquet_multiplier", "theta_eff_slope"):
+            disk = nc[var][:].ravel()
+            assert not np.isnan(disk).any(), var  # fill values on disk, never NaN
+            want = [r[var] for r in records]
+            for got, w in zip(disk, want, strict=True):
+                assert got == FILL_FLOAT if w is None else got == pytest.approx(w, rel=1e-15)
+        assert nc["transmittance_db_se"].units == "dB"
+    flat = open_results(path).stack(p=list(study.dims()))
+    np.testing.assert_array_equal(np.isnan(flat["transmittance_db_se"].values),
+                                  [x is None for x in se])  # fmt: skip
+
+
+def test_unknown_outcome_is_refused_and_pending_points_read_as_failed(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _records(study)
+    bad = [dict(r) for r in records[:2]]
+    bad[1]["outcome"] = "chaotic"
+    with pytest.raises(ValueError, match="outcome must be one of linear, .*got 'chaotic'"):
+        store.write_chunk(0, 2, bad)
+    store.write_chunk(0, 2, records[:2])
+    cols, filled = store.collect_partial()
+    ds = results_from_records(study, cols, computed=filled)
+    flat = ds.stack(p=list(study.dims()))
+    names = outcome_names(flat["outcome"])
+    assert list(names[:2]) == [r["outcome"] for r in records[:2]]
+    assert set(names[2:]) == {"failed"} and set(flat["reason"].values[2:]) == {PENDING}
+    assert flat["pending"].values[2:].all() and not flat["pending"].values[:2].any()
+
+
+def test_cf_attributes_and_provenance(tmp_path: Path) -> None:
+    study = _study()
+    ds = results_from_records(study, _collect(tmp_path, study))
+    for name in list(ds.data_vars) + list(ds.coords):
+        assert {"units", "long_name"} <= set(ds[name].attrs), name
+    for key in ("study", "study_id", "impactcell_version", "solver_settings", "created"):
+        assert key in ds.attrs
+    assert ds.attrs["study_id"] == study.id
+    assert ds["gamma_r"].dims == ("gamma_r",) and ds["theta"].dims == ()
+    assert ds["impacts_per_period"].dims == ("gap", "gamma_r", "stop")
+
+
+def _collect(tmp_path: Path, study: Any, size: int = 5) -> dict[str, np.ndarray]:
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    _fill(store, _records(study), size)
+    return store.collect()
+
+
+def test_collation_independent_of_chunking(tmp_path: Path) -> None:
+    study = _study()
+    records = _records(study)
+    out = []
+    for i, size in enumerate((1, 4, 6)):
+        store = StudyStore(tmp_path / str(i), study)
+        store.prepare()
+        _fill(store, records, size)
+        out.append(results_from_records(study, store.collect(), created="x"))
+    xr.testing.assert_identical(out[0], out[1])
+    xr.testing.assert_identical(out[0], out[2])
+
+
+def test_outputs_select_variables(tmp_path: Path) -> None:
+    study = parse_study(
+        {
+            "name": "o",
+            "solver": SOLVER,
+            "outputs": {"effective_mass": False, "contact": True},
+            "grid": {"gamma_r": [1.0, 2.0], "gap": 0.2, "theta": 0.3, "sigma": 0.05, "gamma_s": 1},
+        }
+    )
+    ds = results_from_records(study, _collect(tmp_path, study))
+    assert "theta_eff" not in ds and "theta_eff_slope" not in ds
+    assert {"peak_impulse", "transmittance_db", "transmittance_db_se", "outcome"} <= set(ds)
+    assert {"failed", "reason", "wall_s"} <= set(ds.data_vars)
+    assert not {"converged", "theta_eff_mean"} & set(ds.data_vars)  # solver version 1 only
+
+
+def test_missing_ranges_and_bad_chunks(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _records(study)
+    store.write_chunk(0, 2, records[0:2])
+    store.write_chunk(4, 5, records[4:5])
+    assert store.missing_ranges() == [(2, 4), (5, 6)]
+    # A chunk marked for retry and an unreadable one are dropped and computed again.
+    store.write_chunk(2, 4, records[2:4], retry=True)
+    (store.chunk_dir / "5-6.npz").write_bytes(b"not a zip")
+    assert store.has_retry_chunks()
+    assert store.missing_ranges() == [(2, 4), (5, 6)]
+    assert not (store.chunk_dir / "5-6.npz").exists()
+    with pytest.raises(ValueError, match="points have no results yet"):
+        store.collect()
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    target = tmp_path / "f.bin"
+
+    def boom(p: Path) -> None:
+        p.write_bytes(b"half")
+        raise RuntimeError("crash mid-write")
+
+    with pytest.raises(RuntimeError):
+        atomic_write(target, boom)
+    assert list(tmp_path.iterdir()) == []
+    atomic_write(target, lambda p: p.write_bytes(b"whole"))
+    assert target.read_bytes() == b"whole" and [x.name for x in tmp_path.iterdir()] == ["f.bin"]
+
+
+def test_paths_are_ids(tmp_path: Path) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    assert store.folder == tmp_path / "studies" / study.id
+    store.prepare()
+    assert store.definition_path.is_file()
+
+
+def test_physical_results_carry_hz_and_gamma_r(tmp_path: Path) -> None:
+    study = parse_study(
+        {
+            "name": "phys",
+            "solver": SOLVER,
+            "physical": {
+                "length_m": 0.15,
+                "width_m": 0.01,
+                "thickness_m": 0.0025,
+                "density_kg_m3": 1250.0,
+                "youngs_modulus_pa": 4.583e7,
+                "outer_mass_kg": 0.01667,
+                "spring_n_m": 350.0,
+                "damping_ratio": 0.03,
+                "gap_m": 0.001,
+            },  # fmt: skip
+            "grid": {"frequency_hz": [20.0, 25.0], "base_amplitude_m": [0.0005, 0.001]},
+        }
+    )
+    ds = results_from_records(study, _collect(tmp_path, study))
+    assert ds["frequency_hz"].attrs["units"] == "Hz"
+    assert ds["gamma_r"].dims == ("frequency_hz",)
+    assert ds["g1"].dims == ("base_amplitude_m",)
+    assert ds["theta"].dims == ()
+    np.testing.assert_allclose(
+        ds["gamma_r"].values, 2 * np.pi * np.array([20, 25]) / np.sqrt(350 / 0.01667)
+    )
