@@ -14,13 +14,16 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 
 # The package, non-editable, with the PostgreSQL driver. numpy, scipy, numba, netCDF4 and
 # psycopg[binary] all ship manylinux wheels, so no compiler is needed; the source tree is built
-# in a scratch directory and removed, so only site-packages holds the code.
+# in a scratch directory and removed, so only site-packages holds the code and the shipped
+# studies (package data: `impactcell run quick`, `impactcell studies`, the nightly suite).
 COPY pyproject.toml README.md /tmp/src/
 COPY worker /tmp/src/worker
 COPY service /tmp/src/service
+COPY studies /tmp/src/studies
 RUN pip install "/tmp/src[postgres]" \
     && rm -rf /tmp/src \
-    && impactcell --help > /dev/null
+    && impactcell --help > /dev/null \
+    && impactcell studies > /dev/null
 
 # An unprivileged user owning the data dir and numba's cache (site-packages is read-only to it,
 # so numba's cache=True kernels need a cache directory of their own).
@@ -38,8 +41,6 @@ WORKDIR /app
 # Compile every method's numba kernels once, into the image's cache: API, scheduler and workers
 # start with compiled kernels instead of each compiling the same ones (about a minute).
 RUN impactcell warmup
-# The shipped study files, so `impactcell run studies/quick.yaml` works in the container.
-COPY --chown=impactcell:impactcell studies /app/studies
 VOLUME ["/data"]
 EXPOSE 8000
 

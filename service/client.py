@@ -279,6 +279,18 @@ class Client:
         """Nightly regression runs, newest first."""
         return self._request("GET", "/regressions").json()["items"]
 
+    def regression(self, reg_id: int) -> dict[str, Any]:
+        """One nightly regression run, with its report once it has finished."""
+        return self._request("GET", f"/regressions/{int(reg_id)}").json()
+
+    def run_nightly(self) -> dict[str, Any]:
+        """Start the nightly suite on the service, through its own job queue; returns the run's
+        record (``regression(id)`` has the report once ``finished_at`` is set).
+
+        Raises :class:`Conflict` while a run is in progress.
+        """
+        return self._request("POST", "/regressions").json()
+
 
 def _params(sel: Mapping[str, Any]) -> dict[str, str]:
     return {k: repr(float(v)) if isinstance(v, float) else str(v) for k, v in sel.items()}

@@ -1,8 +1,24 @@
-"""Test-wide setup."""
+"""Test-wide setup: one BLAS thread, and the test tiers."""
 
 import os
+
+import pytest
 
 # The kernels and references are small dense problems: a multi-threaded BLAS only contends with
 # the dask worker processes on a 2-core machine (scipy's expm ran 40x slower under load with it).
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+
+# --------------------------------------------------------------------------- test tiers
+
+# ``pytest -m "not slow"`` is the developer loop (under a minute); CI runs everything. A test
+# that uses one of these fixtures starts a real dask cluster, so it is slow wherever it lives;
+# servers, subprocesses and whole studies are marked where they are written.
+CLUSTER_FIXTURES = frozenset({"dask_address", "cluster_client"})
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if CLUSTER_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)

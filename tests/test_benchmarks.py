@@ -6,9 +6,12 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_work_precision_quick_runs(tmp_path: Path) -> None:
     path = ROOT / "benchmarks" / "work_precision.py"
     spec = importlib.util.spec_from_file_location("work_precision_smoke", path)

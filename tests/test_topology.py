@@ -31,6 +31,9 @@ from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from tests.service.helpers import comparable, tiny_study
 
+# scheduler, workers and the API as separate processes: the slow tier
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 WORKERS = 2
 START_TIMEOUT = 60.0  # a loaded 2-core machine imports dask and numba slowly

@@ -13,7 +13,18 @@ import math
 import numbers
 from typing import Any
 
-__all__ = ["check_field", "check_fields", "finite", "integer", "nonnegative", "positive"]
+import numpy as np
+
+__all__ = [
+    "bounds_text",
+    "check_field",
+    "check_fields",
+    "finite",
+    "integer",
+    "nonnegative",
+    "out_of_bounds",
+    "positive",
+]
 
 
 def finite(name: str, value: Any) -> float:
@@ -51,10 +62,33 @@ def integer(name: str, value: Any, lo: int, hi: int) -> int:
     return int(value)
 
 
-def _interval(meta: dict[str, Any]) -> str:
-    lo = f"({meta['gt']:g}" if "gt" in meta else (f"[{meta['ge']:g}" if "ge" in meta else "(-inf")
-    hi = f"{meta['lt']:g})" if "lt" in meta else (f"{meta['le']:g}]" if "le" in meta else "inf)")
-    return f"{lo}, {hi}"
+def bounds_text(meta: dict[str, Any]) -> str:
+    """What a field's bounds allow, as error messages say it: ``> 0``, ``in [4, 1e+07]``."""
+    lo = [k for k in ("gt", "ge") if k in meta]
+    hi = [k for k in ("lt", "le") if k in meta]
+    sign = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+    if lo and not hi:
+        return f"{sign[lo[0]]} {meta[lo[0]]:g}"
+    if hi and not lo:
+        return f"{sign[hi[0]]} {meta[hi[0]]:g}"
+    left = f"({meta['gt']:g}" if "gt" in meta else (f"[{meta['ge']:g}" if "ge" in meta else "(-inf")
+    right = f"{meta['lt']:g})" if "lt" in meta else (f"{meta['le']:g}]" if "le" in meta else "inf)")
+    return f"in {left}, {right}"
+
+
+def out_of_bounds(values: Any, meta: dict[str, Any]) -> Any:
+    """Where ``values`` (a number or a numpy array) violate a field's bounds (True = bad)."""
+    v = np.asarray(values, dtype=np.float64)
+    bad = ~np.isfinite(v)
+    if "gt" in meta:
+        bad |= v <= meta["gt"]
+    if "ge" in meta:
+        bad |= v < meta["ge"]
+    if "lt" in meta:
+        bad |= v >= meta["lt"]
+    if "le" in meta:
+        bad |= v > meta["le"]
+    return bad
 
 
 def check_field(name: str, value: Any, meta: dict[str, Any]) -> Any:
@@ -71,17 +105,9 @@ def check_field(name: str, value: Any, meta: dict[str, Any]) -> Any:
         return value
     if meta.get("integer"):
         return integer(name, value, meta["ge"], meta["le"])
-    if set(meta) & {"gt", "ge", "lt", "le"} == {"gt"} and meta["gt"] == 0:
-        return positive(name, value)
-    if set(meta) & {"gt", "ge", "lt", "le"} == {"ge"} and meta["ge"] == 0:
-        return nonnegative(name, value)
     v = finite(name, value)
-    ok = (
-        ("gt" not in meta or v > meta["gt"]) and ("ge" not in meta or v >= meta["ge"])
-        and ("lt" not in meta or v < meta["lt"]) and ("le" not in meta or v <= meta["le"])
-    )  # fmt: skip
-    if not ok:
-        raise ValueError(f"{name} must be in {_interval(meta)}, got {value!r}")
+    if out_of_bounds(v, meta):
+        raise ValueError(f"{name} must be {bounds_text(meta)}, got {v!r}")
     return v
 
 

@@ -18,17 +18,18 @@ frequency for that reason.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from worker.checks import nonnegative, positive
+from worker.checks import check_field, check_fields, nonnegative, positive
 from worker.model.modal import betas
 
 __all__ = [
     "CELL_FIELDS",
+    "FREQUENCY_HZ",
     "TABLE1_FREQUENCIES_HZ",
     "PhysicalCell",
 ]
@@ -42,16 +43,14 @@ TABLE1_FREQUENCIES_HZ: tuple[float, ...] = (
 )  # fmt: skip
 
 
-# The cell's own quantities: always given, always > 0 (the rest of a PhysicalCell has defaults).
-CELL_FIELDS = (
-    "length_m",
-    "width_m",
-    "thickness_m",
-    "density_kg_m3",
-    "youngs_modulus_pa",
-    "outer_mass_kg",
-    "spring_n_m",
-)
+# Field metadata (worker.checks): the allowed values, written once, read by the validation
+# below and by the study schema.
+_POS = {"gt": 0.0}
+_NONNEG = {"ge": 0.0}
+_OPT_POS = {**_POS, "optional": True}
+_OPT_NONNEG = {**_NONNEG, "optional": True}
+#: The excitation frequency's rule (the argument of :meth:`PhysicalCell.to_model`).
+FREQUENCY_HZ: dict[str, float] = _POS
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -79,8 +78,9 @@ class PhysicalCell:
         accelerometer, for instance); see :meth:`from_added_mass`.
     spring_n_m : float
         Stiffness ``k`` of the spring between base and outer mass, > 0.
-    gap_m : float
-        Clearance between the beam tip and each stop, >= 0 (0 pins the tip).
+    gap_m : float or None
+        Clearance between the beam tip and each stop, >= 0 (0 pins the tip). Required unless
+        both ``gap1_m`` and ``gap2_m`` are given.
     damping_ratio : float, optional
         ``ξ >= 0``: the outer dashpot is ``c = 2 ξ ω_m m_o`` (and, per docs/model.md §3, the beam's
         Rayleigh ratio unless the model is given another). Default 0.
@@ -101,48 +101,36 @@ class PhysicalCell:
         is not given exactly once. The message names the field, the value and what is allowed.
     """
 
-    length_m: float
-    width_m: float
-    thickness_m: float
-    density_kg_m3: float
-    youngs_modulus_pa: float
-    outer_mass_kg: float
-    spring_n_m: float
-    gap_m: float
-    damping_ratio: float = 0.0
-    gap1_m: float | None = None
-    gap2_m: float | None = None
-    base_amplitude_m: float | None = None
-    base_acceleration_m_s2: float | None = None
+    length_m: float = field(metadata=_POS)
+    width_m: float = field(metadata=_POS)
+    thickness_m: float = field(metadata=_POS)
+    density_kg_m3: float = field(metadata=_POS)
+    youngs_modulus_pa: float = field(metadata=_POS)
+    outer_mass_kg: float = field(metadata=_POS)
+    spring_n_m: float = field(metadata=_POS)
+    gap_m: float | None = field(default=None, metadata=_OPT_NONNEG)
+    damping_ratio: float = field(default=0.0, metadata=_NONNEG)
+    # The optional gaps stay None when omitted instead of being filled with gap_m, so that
+    # dataclasses.replace(cell, gap_m=...) still moves both gaps.
+    gap1_m: float | None = field(default=None, metadata=_OPT_NONNEG)
+    gap2_m: float | None = field(default=None, metadata=_OPT_NONNEG)
+    base_amplitude_m: float | None = field(default=None, metadata=_OPT_POS)
+    base_acceleration_m_s2: float | None = field(default=None, metadata=_OPT_POS)
 
     def __post_init__(self) -> None:
         """Validate every field and normalise numbers to built-in ``float``."""
-        # Normalising (e.g. numpy scalars, ints) keeps repr/equality/hashing predictable;
-        # frozen dataclasses need object.__setattr__ for this.
-        for name in CELL_FIELDS:
-            object.__setattr__(self, name, positive(name, getattr(self, name)))
-        for name in ("damping_ratio", "gap_m"):
-            object.__setattr__(self, name, nonnegative(name, getattr(self, name)))
-        # The optional gaps stay None when omitted instead of being filled with gap_m, so
-        # that dataclasses.replace(cell, gap_m=...) still moves both gaps.
-        for name in ("gap1_m", "gap2_m"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, nonnegative(name, value))
-
+        # Normalising (e.g. numpy scalars, ints) keeps repr/equality/hashing predictable.
+        check_fields(self)
+        if self.gap_m is None and (self.gap1_m is None or self.gap2_m is None):
+            raise ValueError(
+                "gap_m must be given, or both gap1_m and gap2_m, got "
+                f"gap1_m={self.gap1_m!r}, gap2_m={self.gap2_m!r}"
+            )
         amplitude, acceleration = self.base_amplitude_m, self.base_acceleration_m_s2
         if (amplitude is None) == (acceleration is None):
             raise ValueError(
                 "exactly one of base_amplitude_m and base_acceleration_m_s2 must be given, "
                 f"got base_amplitude_m={amplitude!r}, base_acceleration_m_s2={acceleration!r}"
-            )
-        if amplitude is not None:
-            object.__setattr__(self, "base_amplitude_m", positive("base_amplitude_m", amplitude))
-        else:
-            object.__setattr__(
-                self,
-                "base_acceleration_m_s2",
-                positive("base_acceleration_m_s2", acceleration),
             )
 
     # ----------------------------------------------------------------------------------
@@ -278,6 +266,7 @@ class PhysicalCell:
         """Resolved clearances ``(g1, g2)`` to stop 1 and stop 2 (m)."""
         g1 = self.gap_m if self.gap1_m is None else self.gap1_m
         g2 = self.gap_m if self.gap2_m is None else self.gap2_m
+        assert g1 is not None and g2 is not None  # __post_init__ guarantees both
         return (g1, g2)
 
     def beam_mode_frequencies_hz(self, n: int) -> NDArray[np.float64]:
@@ -324,7 +313,7 @@ class PhysicalCell:
         ValueError
             If ``frequency_hz`` is not finite and > 0.
         """
-        f = positive("frequency_hz", frequency_hz)
+        f = check_field("frequency_hz", frequency_hz, FREQUENCY_HZ)
         return 2.0 * math.pi * f / self.omega_m
 
     def gamma_r_to_hz(self, gamma_r: float) -> float:
@@ -368,7 +357,7 @@ class PhysicalCell:
         ValueError
             If ``frequency_hz`` is not finite and > 0.
         """
-        f = positive("frequency_hz", frequency_hz)
+        f = check_field("frequency_hz", frequency_hz, FREQUENCY_HZ)
         if self.base_amplitude_m is not None:
             return self.base_amplitude_m
         assert self.base_acceleration_m_s2 is not None  # guaranteed by __post_init__
@@ -428,3 +417,10 @@ class PhysicalCell:
             "g1": g1 / b,
             "g2": g2 / b,
         }
+
+
+# The cell's own quantities: always given, always > 0 (the gaps and the excitation have their
+# own rules: gap_m or both gap1_m and gap2_m, exactly one of the two excitations).
+CELL_FIELDS: tuple[str, ...] = tuple(
+    f.name for f in fields(PhysicalCell) if f.default is MISSING and dict(f.metadata) == _POS
+)

@@ -15,6 +15,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from service.api.catalogue import Catalogue
 from service.api.deps import require_token
 from service.api.jobs import JobManager
+from service.api.nightly import NightlyRunner
 from service.api.routes import health, regressions, results, studies
 from service.api.settings import Settings
 from service.studies.provenance import package_version
@@ -90,16 +91,20 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
         app.state.jobs = jobs
         if run_jobs:
             jobs.start()
+        # The nightly suite runs through this service's own queue (cron or POST /regressions).
+        runner = NightlyRunner(settings, catalogue, jobs)
+        app.state.nightly_runner = runner
         nightly = None
         if settings.nightly_cron:
             from service.api.schedule import NightlyScheduler
 
-            nightly = NightlyScheduler(settings, catalogue)
+            nightly = NightlyScheduler(settings, catalogue, run=runner.run)
             nightly.start()
         app.state.nightly = nightly
         try:
             yield
         finally:
+            runner.stop()  # a run in progress cancels its unfinished studies and reports it
             if nightly is not None:
                 nightly.stop()
             jobs.stop()

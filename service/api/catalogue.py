@@ -4,9 +4,10 @@ SQLAlchemy 2 on any URL: a SQLite file in the data dir by default, PostgreSQL (o
 SQLAlchemy speaks) through ``IMPACTCELL_DATABASE_URL``. Access goes through the plain methods of
 :class:`Catalogue`; callers never see sessions.
 
-Tables are created with ``create_all``, which never changes an existing table. Until the schema
-moves to migrations (Alembic), a column added since a catalogue was created is added at startup
-by :func:`_add_missing_columns` (additive, with a server default, so old rows read as 0).
+The schema is versioned with Alembic (:mod:`service.api.migrate`, revisions in
+``service/api/migrations/versions/``): opening a catalogue upgrades its database to the newest
+revision, so a model change here needs a revision there (``impactcell db revision``);
+``tests/service/api/test_migrations.py`` fails until the two agree.
 """
 
 from __future__ import annotations
@@ -29,20 +30,22 @@ from sqlalchemy import (
     delete,
     event,
     func,
-    inspect,
     select,
     text,
     update,
 )
 from sqlalchemy.engine import Engine
-from sqlalchemy.exc import DBAPIError, IntegrityError
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
+
+from service.api import migrate
 
 __all__ = [
     "ACTIVE",
     "RESUMABLE",
     "STATUSES",
     "Catalogue",
+    "metadata",
     "utcnow",
 ]
 
@@ -80,7 +83,8 @@ class StudyRow(_Base):
     points_done: Mapped[int] = mapped_column(Integer, default=0)
     points_failed: Mapped[int] = mapped_column(Integer, default=0)
     points_irregular: Mapped[int] = mapped_column(Integer, default=0)
-    # Added with solver version 2 (outcomes); catalogues created before get it at startup.
+    # Added with solver version 2 (outcomes), before migrations: adopting an older catalogue
+    # adds it (service.api.migrate).
     points_unsettled: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
     submitted_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
     started_at: Mapped[dt.datetime | None] = mapped_column(DateTime(timezone=True))
@@ -121,6 +125,10 @@ class LeaseRow(_Base):
     name: Mapped[str] = mapped_column(String(200), primary_key=True)
     holder: Mapped[str] = mapped_column(String(200))
     expires_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+
+
+# The models' schema: what the migrations' head must create (and autogenerate compares with).
+metadata = _Base.metadata
 
 
 def _aware(t: dt.datetime | None) -> dt.datetime | None:
@@ -169,16 +177,24 @@ class Catalogue:
     """Plain functions over the catalogue database (thread-safe: a session per call)."""
 
     def __init__(self, url: str) -> None:
+        """Open the catalogue at ``url``, first upgrading its database to the newest revision.
+
+        Raises
+        ------
+        service.api.migrate.CatalogueSchemaError
+            The database is at a revision this code does not know (a newer impactcell's), or
+            holds catalogue tables from before migrations that do not match their schema.
+        """
         kwargs: dict[str, Any] = {"pool_pre_ping": True}
         if url.startswith("sqlite"):
             # The service's runner thread and request threads share the file.
             kwargs["connect_args"] = {"check_same_thread": False, "timeout": 30}
         self.url = url
+        # Before any connection of ours: the schema this code reads and writes, or a clear error.
+        migrate.upgrade(url)
         self.engine: Engine = create_engine(url, **kwargs)
         if url.startswith("sqlite"):
             event.listen(self.engine, "connect", _sqlite_pragmas)
-        _Base.metadata.create_all(self.engine)
-        _add_missing_columns(self.engine)
         self._session = sessionmaker(self.engine, expire_on_commit=False)
 
     def close(self) -> None:
@@ -403,40 +419,6 @@ class Catalogue:
         """Give the lease back if we hold it."""
         with self._tx() as s:
             s.execute(delete(LeaseRow).where(LeaseRow.name == name, LeaseRow.holder == holder))
-
-
-def _add_missing_columns(engine: Engine) -> list[str]:
-    """Add the model's columns that an existing table lacks; returns ``table.column`` added.
-
-    Only additive columns with a server default are ever added (old rows get the default), so
-    this is safe on SQLite and PostgreSQL alike and with several processes starting at once
-    (whoever adds a column second finds it there).
-    """
-    added: list[str] = []
-    for table in _Base.metadata.sorted_tables:
-        have = {c["name"] for c in inspect(engine).get_columns(table.name)}
-        for col in table.columns:
-            if col.name in have:
-                continue
-            if col.server_default is None:
-                raise RuntimeError(
-                    f"catalogue table {table.name} lacks column {col.name}, which has no "
-                    "server default to add it with; migrate the catalogue by hand"
-                )
-            kind = col.type.compile(dialect=engine.dialect)
-            default = col.server_default.arg.text  # type: ignore[attr-defined]
-            null = "" if col.nullable else " NOT NULL"
-            ddl = f"ALTER TABLE {table.name} ADD COLUMN {col.name} {kind} DEFAULT {default}{null}"
-            try:
-                with engine.begin() as conn:
-                    conn.execute(text(ddl))
-            except DBAPIError:
-                # Another process added it first; anything else is a real error.
-                have = {c["name"] for c in inspect(engine).get_columns(table.name)}
-                if col.name not in have:
-                    raise
-            added.append(f"{table.name}.{col.name}")
-    return added
 
 
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:

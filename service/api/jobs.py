@@ -20,7 +20,7 @@ from service.api.catalogue import ACTIVE, RESUMABLE, Catalogue, utcnow
 from service.api.settings import Settings
 from service.studies.dataset import json_text
 from service.studies.runner import RunSummary, make_client, run_study
-from service.studies.schema import Study, parse_study
+from service.studies.schema import Study, study_from_canonical
 
 __all__ = ["JobManager", "StateError"]
 
@@ -58,6 +58,12 @@ class JobManager:
             self._enqueue(sid)
         self._thread = threading.Thread(target=self._loop, name="impactcell-runner", daemon=True)
         self._thread.start()
+
+    @property
+    def running(self) -> bool:
+        """Whether the runner thread is taking studies from the queue (started, not stopping)."""
+        alive = self._thread is not None and self._thread.is_alive()
+        return alive and not self._stopping.is_set()
 
     def stop(self, timeout: float = 60.0) -> None:
         """Stop after the chunks in flight; an interrupted study stays queued for the next start."""
@@ -163,7 +169,7 @@ class JobManager:
         assert rec is not None
         failures: list[dict[str, Any]] = list(rec["failures"])
         try:
-            study = parse_study(rec["definition"], max_points=max(rec["points_total"], 1))
+            study = study_from_canonical(rec["definition"], source=f"study {sid}")
             summary = self._execute(sid, study, ev, failures)
         except Exception as exc:  # noqa: BLE001 - recorded, the service carries on
             log.error("study %s failed: %s\n%s", sid, exc, traceback.format_exc())

@@ -3,8 +3,10 @@
 Each service process with ``IMPACTCELL_NIGHTLY_CRON`` set runs a small thread that sleeps until
 the next slot of the expression. At the slot, every process tries to take the catalogue lease
 ``nightly:<slot time>``; only the one that gets it runs the suite, so N processes on one
-catalogue still run it once per slot. The report is stored in the catalogue
-(``GET /regressions``) and the latest outcome shows in ``GET /health``.
+catalogue still run it once per slot. The run itself is the service's
+(:class:`service.api.nightly.NightlyRunner`: the suite's studies go through the service's own
+job queue and cluster). The report is stored in the catalogue (``GET /regressions``) and the
+latest outcome shows in ``GET /health``.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from typing import Any
 from service.api.catalogue import Catalogue
 from service.api.settings import Settings, validate_cron
 
-__all__ = ["NightlyScheduler", "next_slot", "run_nightly_once"]
+__all__ = ["NightlyScheduler", "next_slot", "record_run", "run_nightly_once"]
 
 log = logging.getLogger("impactcell.schedule")
 
@@ -33,24 +35,6 @@ def next_slot(expr: str, after: dt.datetime) -> dt.datetime:
     from croniter import croniter
 
     return croniter(validate_cron(expr), after).get_next(dt.datetime)
-
-
-def _default_run(settings: Settings) -> dict[str, Any]:
-    from service.regression.run import run_suite
-
-    suite = settings.nightly_dir
-    kwargs: dict[str, Any] = {
-        "data_dir": settings.data_dir,
-        "workers": settings.workers,
-        "max_points": settings.max_points,
-    }
-    if suite is not None:
-        kwargs["directory"] = suite
-        kwargs["baselines"] = suite.parent / "baselines"
-    if settings.scheduler:
-        kwargs["scheduler"] = settings.scheduler
-    report = run_suite(**kwargs)
-    return {"ok": report.ok, "report": report.to_json(), "markdown": report.to_markdown()}
 
 
 def run_nightly_once(
@@ -66,6 +50,16 @@ def run_nightly_once(
         log.info("nightly %s: another process holds the lease", lease)
         return None
     reg_id = catalogue.add_regression(trigger)
+    record_run(catalogue, reg_id, run)
+    return reg_id
+
+
+def record_run(catalogue: Catalogue, reg_id: int, run: Callable[[], dict[str, Any]]) -> None:
+    """Run the suite and store its outcome as regression run ``reg_id`` (created before).
+
+    ``run`` returns ``{"ok": bool, "report": dict, "markdown": str}``; an exception is recorded
+    as a run that could not happen (``ok`` false, with the error), never raised.
+    """
     try:
         out = run()
     except Exception as exc:  # noqa: BLE001 - recorded as the run's outcome
@@ -74,31 +68,34 @@ def run_nightly_once(
         catalogue.finish_regression(
             reg_id, ok=False, summary="the suite could not run", error=error
         )
-        return reg_id
+        return
     report = out.get("report") or {}
     summary = report.get("summary") or ("no regressions" if out["ok"] else "regressions found")
     catalogue.finish_regression(
         reg_id, ok=bool(out["ok"]), summary=str(summary), report=report,
         markdown=out.get("markdown", ""),
     )  # fmt: skip
-    return reg_id
 
 
 class NightlyScheduler:
-    """A thread that runs the suite at every slot of ``settings.nightly_cron``."""
+    """A thread that runs the suite at every slot of ``settings.nightly_cron``.
+
+    ``run`` runs the suite once and returns its outcome (the service passes
+    :meth:`service.api.nightly.NightlyRunner.run`).
+    """
 
     def __init__(
         self,
         settings: Settings,
         catalogue: Catalogue,
-        run: Callable[[], dict[str, Any]] | None = None,
+        run: Callable[[], dict[str, Any]],
         clock: Callable[[], dt.datetime] | None = None,
     ) -> None:
         if not settings.nightly_cron:
             raise ValueError("nightly_cron is not set")
         self.expr = settings.nightly_cron
         self.catalogue = catalogue
-        self.run = run or (lambda: _default_run(settings))
+        self.run = run
         self.clock = clock or (lambda: dt.datetime.now(dt.UTC))
         self.holder = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
         self._stop = threading.Event()

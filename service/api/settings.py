@@ -56,6 +56,8 @@ class Settings(BaseSettings):
     max_points: int | None = Field(None, ge=1)
     # Cron expression (5 fields) for the nightly regression suite; unset = no schedule.
     nightly_cron: str | None = None
+    # The suite the service runs (cron, POST /regressions), its baselines in ../baselines;
+    # unset = the shipped suite (service.studies.shipped).
     nightly_dir: Path | None = None
     # The service the CLI's client commands (submit, status) talk to.
     url: str = DEFAULT_URL

@@ -6,12 +6,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from service.cli import nightly, service, simulate, study
+from service.cli import db, nightly, service, simulate, study
 
 __all__ = ["build_parser", "main"]
 
 # In the order ``impactcell --help`` lists them.
-_GROUPS = (simulate, study, service, nightly)
+_GROUPS = (simulate, study, service, nightly, db)
 
 
 def build_parser() -> argparse.ArgumentParser:

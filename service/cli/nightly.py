@@ -64,15 +64,26 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "Exit status 0: no regression; 1: a regression, a missing baseline or a run that "
         "failed; 2: bad input.",
     )
-    p.add_argument("--url", default=None, help="run on an impactcell service at this URL")
+    p.add_argument(
+        "--url",
+        default=None,
+        help="run on an impactcell service at this URL (each study tagged with this run, so "
+        "the service computes it afresh)",
+    )
     p.add_argument(
         "--token",
         default=None,
         help="bearer token of the service (default $IMPACTCELL_API_TOKEN)",
     )
-    p.add_argument("--suite", default="studies/nightly", help="suite folder (studies/nightly)")
     p.add_argument(
-        "--baselines", default="studies/baselines", help="baseline folder (studies/baselines)"
+        "--suite", default=None, help="suite folder (default: the shipped suite, studies/nightly)"
+    )
+    p.add_argument(
+        "--baselines",
+        default=None,
+        help="baseline folder (default: 'baselines' beside --suite; for the shipped suite the "
+        "shipped baselines, studies/baselines, which --update-baseline writes only in a source "
+        "checkout)",
     )
     p.add_argument(
         "--data-dir", default=None, help="data root (default $IMPACTCELL_DATA_DIR or ./data)"

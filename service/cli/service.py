@@ -11,13 +11,7 @@ from typing import Any
 
 from service.api.settings import DEFAULT_URL
 
-__all__ = ["add_commands", "find_studies_dir"]
-
-
-def find_studies_dir() -> Path:
-    """The shipped ``studies/`` folder (repository checkout), else ``./studies``."""
-    here = Path(__file__).resolve().parents[2] / "studies"
-    return here if here.is_dir() else Path("studies").resolve()
+__all__ = ["add_commands"]
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
@@ -95,10 +89,12 @@ def _client(args: argparse.Namespace) -> Any:
 
 def _cmd_submit(args: argparse.Namespace) -> int:
     from service.client import ClientError, StudyFailed
+    from service.studies.shipped import resolve_study_file
 
+    study = resolve_study_file(args.study)
     with _client(args) as c:
         try:
-            rec = c.submit(args.study)
+            rec = c.submit(study)
             print(f"{rec['id']}  {rec['name']}  {rec['status']}  {rec['points_total']:,} points")
             if args.wait:
                 rec = _wait(c, rec["id"], progress=not args.no_progress)
@@ -151,16 +147,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from service.api.settings import Settings
     from service.client import Client
     from service.studies.dataset import encoding
+    from service.studies.shipped import resolve_study_file
 
+    study = resolve_study_file(args.study or ("paper-fig5-gaps" if args.full else "demo-fig5"))
     out = Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    study = (
-        Path(args.study)
-        if args.study
-        else find_studies_dir() / ("paper-fig5-gaps.yaml" if args.full else "demo-fig5.yaml")
-    )
-    if not study.is_file():
-        raise ValueError(f"demo study file not found: {study}")
     settings = Settings(host="127.0.0.1", port=0, data_dir=out / "data", api_token=None,
                         workers=args.workers)  # fmt: skip
     t0 = time.perf_counter()
@@ -233,7 +224,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     url_help = f"service URL (default $IMPACTCELL_URL or {DEFAULT_URL})"
     p = sub.add_parser("submit", help="submit a study file to the service")
-    p.add_argument("study", help="study file (.yaml, .yml or .json)")
+    p.add_argument(
+        "study", help="study file (.yaml, .yml or .json) or a shipped study's name (quick)"
+    )
     p.add_argument("--url", default=None, help=url_help)
     p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
     p.add_argument("--wait", action="store_true", help="wait until it finishes (progress bar)")
@@ -257,7 +250,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="the full paper-fig5-gaps study (5,820 points) instead of the demo cut",
     )
-    p.add_argument("--study", default=None, help="another study file")
+    p.add_argument("--study", default=None, help="another study file or shipped study name")
     p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_demo)  # fmt: skip

@@ -1,4 +1,5 @@
-"""``impactcell run | show``: parameter studies from the command line, without a service."""
+"""``impactcell run | show | studies``: parameter studies from the command line, without a
+service."""
 
 from __future__ import annotations
 
@@ -25,12 +26,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from service.api.settings import Settings
     from service.studies.runner import run_study
     from service.studies.schema import load_study
+    from service.studies.shipped import resolve_study_file
 
     # --out, --scheduler and --max-points over IMPACTCELL_DATA_DIR, _SCHEDULER, _MAX_POINTS.
     settings = Settings.from_flags(
         data_dir=args.out, scheduler=args.scheduler, max_points=args.max_points
     )
-    study = load_study(args.study, max_points=settings.max_points)
+    study = load_study(resolve_study_file(args.study), max_points=settings.max_points)
     bar: Any = None
     progress = None
     if not args.no_progress:
@@ -118,10 +120,37 @@ def _cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_studies(args: argparse.Namespace) -> int:
+    from service.studies.schema import StudyError, load_study
+    from service.studies.shipped import shipped_studies
+
+    rows = []
+    for name, path in shipped_studies().items():
+        try:
+            study = load_study(path)
+        except StudyError as exc:  # a shipped file that does not validate: say so, list the rest
+            rows.append({"name": name, "points": None, "description": f"invalid: {exc}"})
+            continue
+        first = study.description.strip().splitlines()[0] if study.description.strip() else ""
+        rows.append({"name": name, "points": study.size, "description": first})
+    if args.json:
+        print(json.dumps(rows))
+        return 0
+    width = max((len(r["name"]) for r in rows), default=0)
+    for r in rows:
+        points = "?" if r["points"] is None else f"{r['points']:,}"
+        print(f"{r['name']:<{width}}  {points:>7} points  {r['description']}")
+    return 0
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    """Add ``run`` and ``show``."""
+    """Add ``run``, ``show`` and ``studies``."""
     p = sub.add_parser("run", help="run (or resume) a parameter study")
-    p.add_argument("study", help="study file (.yaml, .yml or .json)")
+    p.add_argument(
+        "study",
+        help="study file (.yaml, .yml or .json), or the name of a shipped study "
+        "(`impactcell studies` lists them); a file that exists wins",
+    )
     p.add_argument("--out", default=None, help="data root (default $IMPACTCELL_DATA_DIR or ./data)")
     p.add_argument(
         "--scheduler",
@@ -156,3 +185,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", help="results file (.nc)")
     p.add_argument("--json", action="store_true", help="summary as one JSON object")
     p.set_defaults(func=_cmd_show)
+
+    p = sub.add_parser(
+        "studies",
+        help="list the shipped studies (names for `impactcell run NAME`)",
+        description="The studies shipped with the package: name, points, one-line description.",
+    )
+    p.add_argument("--json", action="store_true", help="the list as one JSON array")
+    p.set_defaults(func=_cmd_studies)

@@ -114,7 +114,8 @@ class StudyComparison:
     """A study's comparison with its baseline.
 
     status: ``passed``, ``failed`` (regressions), ``error`` (could not run or compare),
-    ``missing-baseline``, and with ``--update-baseline`` ``updated`` or ``created``.
+    ``cancelled`` (its study was cancelled before it finished), ``missing-baseline``, and with
+    ``--update-baseline`` ``updated`` or ``created``.
     """
 
     study: str  # suite file stem
@@ -250,7 +251,8 @@ def _definition(ds: xr.Dataset) -> dict[str, Any] | None:
         return None
     if not isinstance(d, dict):
         return None
-    return {k: v for k, v in d.items() if k not in ("name", "description")}
+    # Labels, not what is computed: a run tag (nightly runs through a service) included.
+    return {k: v for k, v in d.items() if k not in ("name", "description", "tag")}
 
 
 def _diff(old: Any, new: Any, where: str, differ: list[str], one_sided: list[str]) -> None:

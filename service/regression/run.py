@@ -2,13 +2,18 @@
 
 Baselines are ``<baselines>/<study-file-stem>.nc``: the comparison variables and coordinates of
 a results file, with its provenance attributes and ``baseline_created``. Results are always
-computed fresh: embedded runs go to a new timestamped folder, and through a service each run is
-a new study.
+computed fresh: embedded runs go to a new timestamped folder, and through a service every study
+carries the run's tag (``nightly-<time>``, part of the study id), so each run is a new study.
+
+The pieces of a run (:func:`new_run_dir`, :func:`tagged`, :func:`evaluate`,
+:func:`not_run`, :func:`make_report`) are shared with the service's own nightly run
+(:mod:`service.api.nightly`), which gets its datasets from its job queue instead.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import time
 from collections.abc import Callable
@@ -20,19 +25,23 @@ import xarray as xr
 from service.regression.compare import StudyComparison, compare, outcomes_of, provenance_of
 from service.regression.report import NightlyReport
 from service.regression.spec import RegressionSpec
-from service.regression.suite import (
-    DEFAULT_BASELINES,
-    DEFAULT_SUITE,
-    SuiteEntry,
-    SuiteError,
-    load_suite,
-    resolve,
-)
+from service.regression.suite import SuiteEntry, SuiteError, load_suite, suite_folders
 from service.studies.chunks import atomic_write, data_root
 from service.studies.dataset import encoding, open_results, summarize
 from service.studies.provenance import git_dirty
+from service.studies.schema import Study, study_from_canonical
+from service.studies.shipped import ShippedStudyError, baselines_dir, in_source_checkout
 
-__all__ = ["run_suite", "write_baseline"]
+__all__ = [
+    "check_baseline_folder",
+    "evaluate",
+    "make_report",
+    "new_run_dir",
+    "not_run",
+    "run_suite",
+    "tagged",
+    "write_baseline",
+]
 
 
 def _now() -> str:
@@ -45,7 +54,8 @@ def write_baseline(
     """Write the comparison variables and coordinates of ``ds`` as a baseline (atomic, zlib).
 
     The results' global attributes (version, git commit, solver version and settings, study)
-    are kept; ``baseline_created``, ``baseline_source`` and ``git_dirty`` are added.
+    are kept, the study without its run tag (a baseline outlives the run it was cut from);
+    ``baseline_created``, ``baseline_source`` and ``git_dirty`` are added.
     """
     keep = [v for v in spec.variables() if v in ds.data_vars]
     out = ds[keep]
@@ -53,6 +63,7 @@ def write_baseline(
         out = out.drop_vars("stop")
     out.attrs = {
         **ds.attrs,
+        **_untagged(ds.attrs),
         "baseline_created": _now(),
         "baseline_source": source,
         "baseline_variables": " ".join(keep),
@@ -65,12 +76,72 @@ def write_baseline(
     return p
 
 
-def _stamp_dir(base: Path) -> Path:
+def _untagged(attrs: dict[str, Any]) -> dict[str, Any]:
+    """``study`` and ``study_id`` attributes without the run tag (a baseline outlives its run)."""
+    try:
+        definition = json.loads(str(attrs.get("study", "")))
+    except ValueError:
+        return {}
+    if not isinstance(definition, dict) or "tag" not in definition:
+        return {}
+    del definition["tag"]
+    study = study_from_canonical(definition, source="baseline")
+    return {"study": study.canonical_json(), "study_id": study.id}
+
+
+def new_run_dir(data_dir: str | os.PathLike[str] | None = None) -> Path:
+    """A new folder ``<data_dir>/nightly/<UTC time>[-n]`` for one run, created here.
+
+    Its name is the run's identity: unique in the data dir even for runs in the same second
+    (the tag of a run through a service is ``nightly-<name>``).
+    """
+    base = data_root(data_dir) / "nightly"
+    base.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     d, i = base / stamp, 1
-    while d.exists():
-        d, i = base / f"{stamp}-{i}", i + 1
-    return d
+    while True:
+        try:
+            d.mkdir()
+            return d
+        except FileExistsError:
+            d, i = base / f"{stamp}-{i}", i + 1
+
+
+def tagged(study: Study, tag: str) -> Study:
+    """``study`` with the run tag ``tag``: the same definition, a new id (a fresh run)."""
+    return study_from_canonical({**study.canonical(), "tag": tag})
+
+
+def check_baseline_folder(base_dir: Path, update: bool) -> None:
+    """Refuse a baseline folder that is not a folder, or writing into installed package data.
+
+    Raises
+    ------
+    SuiteError
+        ``base_dir`` exists and is not a folder; or ``update`` and ``base_dir`` is the shipped
+        baselines of an installed package (not a source checkout's ``studies/baselines``).
+    """
+    if base_dir.exists() and not base_dir.is_dir():
+        raise SuiteError([f"baselines {base_dir} is not a folder"])
+    if not update:
+        return
+    try:
+        shipped, checkout = baselines_dir(), in_source_checkout()
+    except ShippedStudyError:  # no shipped studies installed: base_dir is not theirs
+        return
+    if not checkout and _same(base_dir, shipped):
+        raise SuiteError([
+            f"--update-baseline writes baselines, and {base_dir} is the installed package's "
+            "copy of the shipped baselines, not a source checkout's studies/baselines; give "
+            "the folder to write with --baselines DIR (in a checkout: its studies/baselines)"
+        ])  # fmt: skip
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
 
 
 def _embedded_client(workers: int | None) -> tuple[Any, Any]:
@@ -87,8 +158,8 @@ def _embedded_client(workers: int | None) -> tuple[Any, Any]:
 
 
 def run_suite(
-    directory: str | os.PathLike[str] = DEFAULT_SUITE,
-    baselines: str | os.PathLike[str] = DEFAULT_BASELINES,
+    directory: str | os.PathLike[str] | None = None,
+    baselines: str | os.PathLike[str] | None = None,
     url: str | None = None,
     token: str | None = None,
     data_dir: str | os.PathLike[str] | None = None,
@@ -105,12 +176,15 @@ def run_suite(
 
     Parameters
     ----------
-    directory : path
-        The suite folder (default ``studies/nightly``).
-    baselines : path
-        Baseline folder (default ``studies/baselines``): ``<file stem>.nc`` per study.
+    directory : path, optional
+        The suite folder (default the shipped suite, ``studies/nightly``).
+    baselines : path, optional
+        Baseline folder: ``<file stem>.nc`` per study. Default: the ``baselines`` folder beside
+        ``directory``; for the shipped suite the shipped baselines (``studies/baselines``), which
+        ``update_baseline`` writes only in a source checkout.
     url, token : str, optional
-        Run on an impactcell service (``service.client.Client``) instead of embedded.
+        Run on an impactcell service (``service.client.Client``) instead of embedded: every
+        study is submitted with the run's tag, so the service computes it afresh.
     data_dir : path, optional
         Data root (``Settings.data_dir``; default ``./data``). Embedded runs go to a fresh
         ``<data_dir>/nightly/<timestamp>/runs`` so results are never reused from an earlier run.
@@ -132,16 +206,15 @@ def run_suite(
     Raises
     ------
     SuiteError
-        The suite folder or a study file in it is bad (nothing is run).
+        The suite folder or a study file in it is bad, or the baseline folder cannot be used
+        (nothing is run).
     """
     t0 = time.perf_counter()
     started = _now()
-    entries = load_suite(directory, max_points=max_points)
-    suite_dir = entries[0].path.parent
-    base_dir = resolve(baselines, DEFAULT_BASELINES)
-    if base_dir.exists() and not base_dir.is_dir():
-        raise SuiteError([f"baselines {base_dir} is not a folder"])
-    run_dir = _stamp_dir(data_root(data_dir) / "nightly")
+    suite_dir, base_dir = suite_folders(directory, baselines)
+    entries = load_suite(suite_dir, max_points=max_points)
+    check_baseline_folder(base_dir, update_baseline)
+    run_dir = new_run_dir(data_dir)
     reports = Path(report_dir) if report_dir is not None else run_dir
     say = log or (lambda _msg: None)
 
@@ -165,7 +238,7 @@ def run_suite(
             client, cluster = _embedded_client(workers)
         for k, entry in enumerate(entries, 1):
             t = time.perf_counter()
-            cmp = _run_one(entry, base_dir, run_dir / "runs", url, client, serial, update_baseline)
+            cmp = _run_one(entry, base_dir, run_dir, url, client, serial, update_baseline)
             cmp.wall_s = round(time.perf_counter() - t, 3)
             results.append(cmp)
             say(
@@ -180,6 +253,28 @@ def run_suite(
         elif client is not None and hasattr(client, "close"):
             client.close()
 
+    mode = url or (
+        "embedded, serial" if serial else f"dask {scheduler}" if scheduler else "embedded"
+    )
+    return make_report(
+        entries, results, suite_dir, base_dir, mode=mode, update=update_baseline,
+        started=started, wall_s=time.perf_counter() - t0, report_dir=reports,
+    )  # fmt: skip
+
+
+def make_report(
+    entries: list[SuiteEntry],
+    results: list[StudyComparison],
+    suite_dir: Path,
+    base_dir: Path,
+    *,
+    mode: str,
+    update: bool,
+    started: str,
+    wall_s: float,
+    report_dir: str | os.PathLike[str],
+) -> NightlyReport:
+    """The report of a run (noting baselines without a suite file), written to ``report_dir``."""
     notes = []
     if base_dir.is_dir():
         stems = {e.stem for e in entries}
@@ -190,55 +285,68 @@ def run_suite(
         studies=results,
         suite=str(suite_dir),
         baselines=str(base_dir),
-        mode=url
-        or ("embedded, serial" if serial else f"dask {scheduler}" if scheduler else "embedded"),
-        update_baseline=update_baseline,
+        mode=mode,
+        update_baseline=update,
         started=started,
-        wall_s=round(time.perf_counter() - t0, 3),
+        wall_s=round(wall_s, 3),
         notes=notes,
     )
-    report.write(reports)
+    report.write(report_dir)
     return report
+
+
+def not_run(entry: SuiteEntry, message: str, *, status: str = "error") -> StudyComparison:
+    """The comparison of a study whose run did not finish (``error`` or ``cancelled``)."""
+    return StudyComparison(
+        study=entry.stem,
+        name=entry.study.name,
+        study_id=entry.study.id,
+        points=entry.study.size,
+        status=status,
+        error=message,
+    )
 
 
 def _run_one(
     entry: SuiteEntry,
     base_dir: Path,
-    run_root: Path,
+    run_dir: Path,
     url: str | None,
     client: Any,
     serial: bool,
     update: bool,
 ) -> StudyComparison:
     """Run one study, compare it with its baseline, write the baseline when updating."""
-    bpath = base_dir / f"{entry.stem}.nc"
-    label = {"study": entry.stem, "name": entry.study.name, "baseline": str(bpath)}
     try:
         if url is not None:
-            # The service returns an identical earlier study as is; a run tag in the
-            # description (ignored by the comparison) makes this a fresh run of today's code.
-            definition = entry.study.canonical()
-            tag = f"nightly run {run_root.parent.name}"
-            definition["description"] = f"{definition.get('description') or ''} [{tag}]".strip()
-            rec = client.submit(definition)
+            # The service returns an identical earlier study as it is: the run's tag (part of
+            # the study id, ignored by the comparison) makes this a fresh run of today's code.
+            # The file's own definition is sent (a canonical one fills in defaults that the
+            # input rules refuse, e.g. model.xi beside an xi axis).
+            rec = client.submit({**entry.definition, "tag": f"nightly-{run_dir.name}"})
             client.wait(rec["id"], progress=False)
             ds = client.dataset(rec["id"])
             where = f"{url} study {rec['id']}"
         else:
             from service.studies.runner import run_study
 
-            summary = run_study(entry.study, run_root, client=client, serial=serial)
+            summary = run_study(entry.study, run_dir / "runs", client=client, serial=serial)
             ds = open_results(summary.path)
             where = str(summary.path)
     except Exception as exc:  # a run that could not finish is reported, not raised
-        return StudyComparison(
-            **label,
-            study_id=entry.study.id,
-            points=entry.study.size,
-            status="error",
-            error=f"run failed: {type(exc).__name__}: {exc}",
-        )
+        return not_run(entry, f"run failed: {type(exc).__name__}: {exc}")
+    return evaluate(entry, ds, where, base_dir, update=update)
 
+
+def evaluate(
+    entry: SuiteEntry, ds: xr.Dataset, where: str, base_dir: Path, *, update: bool = False
+) -> StudyComparison:
+    """Compare a study's finished dataset with its baseline; write the baseline when updating.
+
+    ``where`` says where the results are (a path, or a service and study id) for the report.
+    A missing or unreadable baseline is reported, never raised.
+    """
+    bpath = base_dir / f"{entry.stem}.nc"
     old: xr.Dataset | None = None
     unreadable = ""
     if bpath.exists():

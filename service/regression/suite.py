@@ -1,7 +1,8 @@
 """The nightly suite: a folder of study files, each with its ``regression:`` block.
 
-A suite is a folder of study files (``studies/nightly/*.yaml``). :func:`load_suite` reads every
-one (:func:`service.studies.files.read_study_file`), splits off the ``regression:`` block
+A suite is a folder of study files (the shipped one is ``studies/nightly/*.yaml``, found through
+:mod:`service.studies.shipped`). :func:`load_suite` reads every one
+(:func:`service.studies.files.read_study_file`), splits off the ``regression:`` block
 (:class:`~service.regression.spec.RegressionSpec`) and validates the rest as a study, reporting
 every problem of every file at once. Each study's baseline is named by its file's stem.
 """
@@ -19,20 +20,15 @@ from pydantic import ValidationError
 from service.regression.spec import RegressionSpec
 from service.studies.files import STUDY_SUFFIXES, read_study_file
 from service.studies.schema import Study, StudyError, parse_study, validation_problems
+from service.studies.shipped import baselines_dir, suite_dir
 from service.studies.variables import VARIABLES
 
 __all__ = [
-    "DEFAULT_BASELINES",
-    "DEFAULT_SUITE",
     "SuiteEntry",
     "SuiteError",
     "load_suite",
-    "resolve",
+    "suite_folders",
 ]
-
-DEFAULT_SUITE = Path("studies/nightly")
-DEFAULT_BASELINES = Path("studies/baselines")
-_REPO = Path(__file__).resolve().parents[2]
 
 
 class SuiteError(ValueError):
@@ -58,18 +54,27 @@ class SuiteEntry:
         return self.path.stem
 
 
-def resolve(path: str | os.PathLike[str], default: Path) -> Path:
-    """``path``; a relative default missing here is looked up in the source tree."""
-    p = Path(path)
-    if p == default and not p.exists() and (_REPO / default).exists():
-        return _REPO / default
-    return p
+def suite_folders(
+    directory: str | os.PathLike[str] | None = None,
+    baselines: str | os.PathLike[str] | None = None,
+) -> tuple[Path, Path]:
+    """The suite folder and the baseline folder of a run.
+
+    ``directory`` defaults to the shipped suite (``studies/nightly``), ``baselines`` to the
+    ``baselines`` folder beside the suite folder (for the shipped suite: the shipped baselines,
+    ``studies/baselines``).
+    """
+    suite = suite_dir() if directory is None else Path(directory)
+    if baselines is not None:
+        return suite, Path(baselines)
+    return suite, (baselines_dir() if directory is None else suite.parent / "baselines")
 
 
 def load_suite(
-    directory: str | os.PathLike[str] = DEFAULT_SUITE, *, max_points: int | None = None
+    directory: str | os.PathLike[str] | None = None, *, max_points: int | None = None
 ) -> list[SuiteEntry]:
-    """Read and validate every study file in ``directory`` (sorted by name).
+    """Read and validate every study file in ``directory`` (sorted by name; default the
+    shipped suite).
 
     ``max_points`` limits each study's grid size (default that of
     :func:`~service.studies.schema.parse_study`).
@@ -79,7 +84,7 @@ def load_suite(
     SuiteError
         Listing every problem of every file (a ``ValueError``).
     """
-    folder = resolve(directory, DEFAULT_SUITE)
+    folder = suite_folders(directory)[0]
     if not folder.is_dir():
         raise SuiteError([f"suite folder {folder} does not exist"])
     files = sorted(

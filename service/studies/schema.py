@@ -1,7 +1,8 @@
 """Study definitions: one pydantic model, validation and the content-hash id.
 
 A study file (YAML or JSON) names a cell model, solver settings, the outputs to store and a grid;
-the study is the Cartesian product of the grid's axes (:mod:`service.studies.grid`).
+the study is the Cartesian product of the grid's axes (:mod:`service.studies.grid`). The
+blocks themselves are derived from the worker's types (:mod:`service.studies.specs`).
 Non-dimensional studies vary the parameters of docs/model.md §3; physical studies
 (docs/model.md §8) give a ``physical:`` block in SI units and vary ``frequency_hz`` and any
 physical field.
@@ -18,23 +19,17 @@ import math
 import os
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import (
-    Field,
-    ValidationError,
-    ValidationInfo,
-    field_validator,
-    model_validator,
-)
+from pydantic import Field, ValidationError
 
 from service.studies.files import read_study_file
-from service.studies.grid import AXIS_TAGS, Axis, Integer, Real, StrictModel, axis_values
+from service.studies.grid import AXIS_TAGS, StrictModel, axis_values
+from service.studies.specs import Grid, ModelSpec, PhysicalSpec, SolverSpec
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
 from worker.physical import CELL_FIELDS, PhysicalCell
-from worker.simulate import SOLVER_VERSION, SolverSettings
-from worker.solvers.settings import LCP_SOLVERS, METHODS
+from worker.simulate import SOLVER_VERSION
 
 __all__ = [
     "DEFAULT_MAX_POINTS",
@@ -47,122 +42,14 @@ __all__ = [
     "StudyError",
     "load_study",
     "parse_study",
+    "study_from_canonical",
     "validation_problems",
 ]
 
 # The grid-size limit when none is given (``Settings.max_points``, ``--max-points``).
 DEFAULT_MAX_POINTS = 2_000_000
 
-_POSITIVE = {
-    "theta", "sigma", "gamma_s", "gamma_r", "frequency_hz", "length_m", "width_m",
-    "thickness_m", "density_kg_m3", "youngs_modulus_pa", "outer_mass_kg", "spring_n_m",
-    "base_amplitude_m", "base_acceleration_m_s2",
-}  # fmt: skip
-_PHYSICAL_REQUIRED = CELL_FIELDS
-
-
 # --------------------------------------------------------------------------- the study
-
-
-class Grid(StrictModel):
-    """Every axis a study may vary; which ones are allowed depends on the kind of study."""
-
-    # Non-dimensional axes (docs/model.md §3).
-    gamma_r: Axis | None = None
-    gap: Axis | None = None
-    g1: Axis | None = None
-    g2: Axis | None = None
-    theta: Axis | None = None
-    sigma: Axis | None = None
-    gamma_s: Axis | None = None
-    xi: Axis | None = None
-    # Physical axes (docs/model.md §8).
-    frequency_hz: Axis | None = None
-    length_m: Axis | None = None
-    width_m: Axis | None = None
-    thickness_m: Axis | None = None
-    density_kg_m3: Axis | None = None
-    youngs_modulus_pa: Axis | None = None
-    outer_mass_kg: Axis | None = None
-    spring_n_m: Axis | None = None
-    damping_ratio: Axis | None = None
-    gap_m: Axis | None = None
-    gap1_m: Axis | None = None
-    gap2_m: Axis | None = None
-    base_amplitude_m: Axis | None = None
-    base_acceleration_m_s2: Axis | None = None
-
-    @field_validator("*", mode="after")
-    @classmethod
-    def _domain(cls, value: Any, info: ValidationInfo) -> Any:
-        if value is None:
-            return value
-        name = info.field_name
-        assert name is not None
-        values = axis_values(value)
-        if values.size == 0:
-            raise ValueError("must not be empty")
-        bad = values <= 0 if name in _POSITIVE else values < 0
-        if np.any(bad):
-            i = int(np.argmax(bad))
-            what = "> 0" if name in _POSITIVE else ">= 0"
-            where = f" (value {i})" if values.size > 1 else ""
-            raise ValueError(f"must be {what}, got {values[i]:g}{where}")
-        if np.unique(values).size != values.size:
-            raise ValueError("values must be distinct")
-        return value
-
-    def given(self) -> dict[str, Any]:
-        """The axes that are set, by name."""
-        names = type(self).model_fields
-        return {k: getattr(self, k) for k in names if getattr(self, k) is not None}
-
-
-# --------------------------------------------------------------------------- the study
-
-
-class ModelSpec(StrictModel):
-    """The cell model: coupling, number of modes, damping (docs/model.md §3)."""
-
-    coupling: Literal["paper", "full"] = "paper"
-    modes: Integer = Field(5, ge=1, le=30)
-    xi: Real = Field(0.05, ge=0)
-    xi_b: Real | None = Field(None, ge=0)
-
-
-# The worker's defaults, so a study's defaults are the solver's (never retyped here).
-_SOLVER = SolverSettings()
-
-
-class SolverSpec(StrictModel):
-    """How every point is integrated and how it ends (``worker.simulate.SolverSettings``).
-
-    Every default is the worker's; ``SolverSettings`` validates the values and names the field
-    and its allowed range.
-    """
-
-    method: Literal[METHODS] = _SOLVER.method  # type: ignore[valid-type]
-    steps_per_period: Integer | None = _SOLVER.steps_per_period
-    coarse_steps: Integer = _SOLVER.coarse_steps
-    max_periods: Integer = _SOLVER.max_periods
-    periodicity_tol: Real = _SOLVER.periodicity_tol
-    window: Integer = _SOLVER.window
-    stat_tol_db: Real = _SOLVER.stat_tol_db
-    near_margin: Real = _SOLVER.near_margin
-    adaptive: bool = _SOLVER.adaptive
-    early_stop: bool = _SOLVER.early_stop
-    extrapolate: bool = _SOLVER.extrapolate
-    linear_tail: bool = _SOLVER.linear_tail
-    lcp: Literal[LCP_SOLVERS] = _SOLVER.lcp  # type: ignore[valid-type]
-
-    @model_validator(mode="after")
-    def _check(self) -> SolverSpec:
-        self.settings()  # SolverSettings names the field and the allowed range
-        return self
-
-    def settings(self) -> SolverSettings:
-        """The worker's solver settings."""
-        return SolverSettings(**self.model_dump())
 
 
 class Outputs(StrictModel):
@@ -181,29 +68,14 @@ class Outputs(StrictModel):
     contact: bool = False
 
 
-class PhysicalSpec(StrictModel):
-    """A cell in SI units (``worker.physical.PhysicalCell``); grid axes override fields."""
-
-    length_m: Real | None = None
-    width_m: Real | None = None
-    thickness_m: Real | None = None
-    density_kg_m3: Real | None = None
-    youngs_modulus_pa: Real | None = None
-    outer_mass_kg: Real | None = None
-    spring_n_m: Real | None = None
-    damping_ratio: Real | None = None
-    gap_m: Real | None = None
-    gap1_m: Real | None = None
-    gap2_m: Real | None = None
-    base_amplitude_m: Real | None = None
-    base_acceleration_m_s2: Real | None = None
-
-
 class Study(StrictModel):
     """A parameter study: the Cartesian product of ``grid``'s axes."""
 
     name: str = Field(min_length=1, max_length=200)
     description: str = ""
+    # A run tag: part of the id (a new tag is a fresh run of the same definition); absent by
+    # default, so untagged studies keep their ids. The nightly suite sets ``nightly-<time>``.
+    tag: str | None = Field(None, min_length=1, max_length=100)
     model: ModelSpec = ModelSpec()
     solver: SolverSpec = SolverSpec()
     outputs: Outputs = Outputs()
@@ -356,7 +228,7 @@ def _grid_problems(
         if explicit_xi:
             out.append(("model.xi", "a physical study takes physical.damping_ratio instead"))
         base = physical.model_dump(exclude_none=True)
-        for k in _PHYSICAL_REQUIRED:
+        for k in CELL_FIELDS:
             if k not in base and k not in given:
                 out.append((f"physical.{k}", "is required (in physical: or as a grid axis)"))
         if not any(k in base or k in given for k in ("gap_m", "gap1_m")) or not any(
@@ -444,23 +316,33 @@ def parse_study(data: Any, *, max_points: int | None = None, source: str = "stud
         if isinstance(data, Mapping) and isinstance(data.get("grid"), Mapping):
             grid_ok = not any(p == "grid" or p.startswith("grid.") for p, _ in problems)
             if grid_ok:
+                physical = None
+                bad: set[str] = set()
+                if isinstance(data.get("physical"), Mapping):
+                    # The valid keys of the block (its bad ones are listed already), so that
+                    # the presence rules of a physical study are still checked.
+                    bad = {p.split(".")[1] for p, _ in problems if p.startswith("physical.")}
+                    known = set(PhysicalSpec.model_fields) - bad
+                    good = {k: v for k, v in data["physical"].items() if k in known}
+                    try:
+                        physical = PhysicalSpec.model_validate(good)
+                    except ValidationError:
+                        physical = PhysicalSpec.model_construct()
                 try:
                     grid = Grid.model_validate(data["grid"])
-                    physical = (
-                        PhysicalSpec.model_validate(data["physical"])
-                        if isinstance(data.get("physical"), Mapping)
-                        else None
-                    )
                 except ValidationError:
                     pass
                 else:
                     explicit_xi = isinstance(data.get("model"), Mapping) and "xi" in data["model"]
+                    seen = {p for p, _ in problems}
                     problems += [
                         pr
                         for pr in _grid_problems(
                             grid, physical, explicit_xi=explicit_xi, max_points=max_points
                         )
-                        if not pr[0].startswith("physical")
+                        # a field already reported is not reported again ("physical": the
+                        # cell could not be built, which its bad fields already say)
+                        if pr[0] not in seen and not (pr[0] == "physical" and bad)
                     ]
             elif "physical" not in data:
                 problems += _presence_problems(set(data["grid"]))
@@ -469,6 +351,25 @@ def parse_study(data: Any, *, max_points: int | None = None, source: str = "stud
     if problems:
         raise StudyError(problems, source)
     return study
+
+
+def study_from_canonical(data: Any, *, source: str = "canonical definition") -> Study:
+    """A study from its canonical definition (:meth:`Study.canonical`, as the catalogue and
+    results files store it), checked against the model but not by the rules for user input.
+
+    :func:`parse_study` can refuse a canonical definition: it has every default filled in, so
+    ``model.xi`` reads as given twice when ``xi`` is a grid axis, or as given in a physical
+    study. The id is that of the study the definition was made from.
+
+    Raises
+    ------
+    StudyError
+        The definition does not fit the model (e.g. it was written by another version).
+    """
+    try:
+        return Study.model_validate(data)
+    except ValidationError as exc:
+        raise StudyError(validation_problems(exc), source) from None
 
 
 def load_study(path: str | os.PathLike[str], *, max_points: int | None = None) -> Study:

@@ -20,11 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from worker.model import CellParams
 from worker.physical import PhysicalCell
 from worker.solvers.settings import OUTCOMES
 
 __all__ = [
     "AXES",
+    "AXIS_PARAMETER",
     "FREQUENCY_AXES",
     "MODEL_AXES",
     "OUTCOMES",
@@ -46,7 +48,21 @@ __all__ = [
 
 # Canonical axis order (the dataset's dimension order, independent of the file's key order).
 # γ_r is last so that a chunk of consecutive points is a piece of one spectrum.
-MODEL_AXES: tuple[str, ...] = ("gap", "g1", "g2", "theta", "sigma", "gamma_s", "xi", "gamma_r")
+# The axes are CellParams' real-valued parameters (not the optional xi_b) plus ``gap`` (both
+# stops at once): the stops first, then the parameters in CellParams' order.
+AXIS_PARAMETER: dict[str, str] = {"gap": "g1"}  # an axis that is not a parameter -> the rule
+_CELL_AXES = tuple(
+    f.name
+    for f in dataclasses.fields(CellParams)
+    if not ({"choices", "integer", "boolean", "optional"} & set(f.metadata))
+)
+MODEL_AXES: tuple[str, ...] = (
+    "gap",
+    "g1",
+    "g2",
+    *(a for a in _CELL_AXES if a not in ("g1", "g2", "gamma_r")),
+    "gamma_r",
+)
 # The SI fields are PhysicalCell's own, so the study schema cannot drift from the cell.
 PHYSICAL_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PhysicalCell))
 PHYSICAL_AXES: tuple[str, ...] = (*PHYSICAL_FIELDS, "frequency_hz")

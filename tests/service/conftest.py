@@ -42,11 +42,13 @@ def catalogue_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[st
     url = os.environ.get("IMPACTCELL_TEST_DATABASE_URL")
     if not url:
         pytest.skip("PostgreSQL leg: IMPACTCELL_TEST_DATABASE_URL is not set (.ci/run sets it)")
-    from sqlalchemy import create_engine
+    from sqlalchemy import create_engine, text
 
     from service.api.catalogue import _Base
 
     engine = create_engine(url)
     _Base.metadata.drop_all(engine)
+    with engine.begin() as conn:  # and the migrations' stamp, or the next start would trust it
+        conn.execute(text("DROP TABLE IF EXISTS alembic_version"))
     engine.dispose()
     yield url

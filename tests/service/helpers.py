@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import xarray as xr
 
-__all__ = ["FAST_SOLVER", "SLOW_SOLVER", "comparable", "tiny_study"]
+__all__ = [
+    "FAST_SOLVER",
+    "SLOW_SOLVER",
+    "TINY",
+    "TINY_EULER",
+    "comparable",
+    "tiny_study",
+    "write_suite",
+]
 
 # A coarse, fast solver: these tests check the service, not the numbers (tests/worker do that).
 FAST_SOLVER = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}
@@ -35,3 +44,41 @@ def comparable(ds: xr.Dataset) -> xr.Dataset:
     out = ds.drop_vars("wall_s")
     out.attrs = {k: v for k, v in ds.attrs.items() if k != "created"}
     return out
+
+
+# A tiny nightly suite (seconds, serial): one study with a regression block, one without.
+TINY = """\
+name: tiny
+model: {coupling: paper, modes: 3, xi: 0.05}
+solver: {steps_per_period: 512, max_periods: 200, periodicity_tol: 1.0e-6, window: 10}
+grid:
+  gamma_r: [0.5, 1.2, 2.0, 3.0, 3.6, 4.8]
+  gap: [0.1, 0.5]
+  theta: 0.3
+  sigma: 0.05
+  gamma_s: 1.0
+regression:
+  tolerances:
+    theta_eff: {abs: 1.0e-3, rel: 1.0e-3}
+"""
+
+TINY_EULER = """\
+name: tiny-euler
+model: {coupling: full, modes: 3, xi: 0.05}
+solver: {method: euler, steps_per_period: 256, max_periods: 300, window: 10}
+grid:
+  gamma_r: [1.0, 2.0, 3.0]
+  g1: 0.1
+  g2: 0.3
+  theta: 0.3
+  sigma: 0.05
+  gamma_s: 1.0
+"""
+
+
+def write_suite(folder: Path) -> Path:
+    """Write the tiny suite (``tiny.yaml``, ``tiny-euler.yaml``) into ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "tiny.yaml").write_text(TINY, encoding="utf-8")
+    (folder / "tiny-euler.yaml").write_text(TINY_EULER, encoding="utf-8")
+    return folder

@@ -352,6 +352,10 @@ def test_asymmetric_gaps() -> None:
     assert only2.gaps_m == (2e-3, 5e-3)
     # Unset sides follow gap_m through dataclasses.replace.
     assert dataclasses.replace(only2, gap_m=4e-3).gaps_m == (4e-3, 5e-3)
+    # Both sides given: gap_m is not needed; one side alone is not enough.
+    assert _cell(gap_m=None, gap1_m=1e-3, gap2_m=3e-3).gaps_m == (1e-3, 3e-3)
+    with pytest.raises(ValueError, match=r"^gap_m must be given, or both gap1_m and gap2_m"):
+        _cell(gap_m=None, gap1_m=1e-3)
 
 
 def test_zero_gap_is_allowed() -> None:

@@ -4,7 +4,9 @@ Points are chosen where the answer depends on the physics: near the mass resonan
 isolation range and near the first pinned mode, both couplings, several damping ratios (a
 near-static point, where Γ is 0.0009 dB whatever the model, would prove nothing). The
 linear-tail proof is switched off so that each method integrates the impact-free response
-itself instead of reporting the closed form.
+itself instead of reporting the closed form. The extreme corners of the stress sweep (θ 1e-3 …
+1e3, σ 1e-4 … 10, γ_r 0.01 … 50, ξ 0.5) are checked at default settings, as a study runs them.
+This is the one module of closed-form checks; other tests use the closed forms only as values.
 """
 
 import math
@@ -13,7 +15,7 @@ import numpy as np
 import pytest
 
 from worker.model import CellParams, assemble, linear_transmittance_db, pinned_transmittance_db
-from worker.simulate import SolverSettings, simulate_point
+from worker.simulate import SolverSettings, simulate_chunk, simulate_point
 
 METHODS = ("event", "exponential", "euler")
 # Γ tolerance (dB) at default resolution: event is exact between events, exponential exact in
@@ -65,6 +67,39 @@ def test_zero_gaps_give_the_pinned_linear_response(method, kw):
     r = integrate(p, method)
     assert r.outcome == "periodic" and r.response_period == 1
     assert r.transmittance_db == pytest.approx(pinned_transmittance_db(p), abs=PINNED_TOL[method])
+
+
+# Extreme parameters (the stress sweep's corners): huge gaps (linear) and zero gaps (pinned), at
+# default settings through simulate_chunk, with per-method Γ tolerances (dB).
+EXTREME_BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, gamma_r=0.85)
+EXTREME_TOL = {"exponential": 1e-4, "event": 1e-6, "euler": 0.05}
+EXTREME_TOL_PINNED = {"exponential": 1e-3, "event": 1e-5, "euler": 0.05}
+EXTREME_LINEAR = [
+    {"theta": 1e-3, "g1": 1e6, "g2": 1e6},
+    {"theta": 1e3, "g1": 1e6, "g2": 1e6},
+    {"sigma": 10.0, "g1": 1e6, "g2": 1e6, "coupling": "full"},
+    {"gamma_r": 0.01, "g1": 1e6, "g2": 1e6},
+    {"gamma_r": 50.0, "xi": 0.5, "g1": 1e6, "g2": 1e6, "coupling": "full"},
+    {"xi": 0.5, "gamma_s": 10.0, "g1": 1e6, "g2": 1e6},
+]
+EXTREME_PINNED = [
+    {"g1": 0.0, "g2": 0.0, "sigma": 1e-4},
+    {"g1": 0.0, "g2": 0.0, "sigma": 10.0, "coupling": "full"},
+    {"g1": 0.0, "g2": 0.0, "gamma_s": 0.1, "gamma_r": 2.0},
+    {"g1": 0.0, "g2": 0.0, "xi": 0.5, "modes": 1, "coupling": "full"},
+]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_extreme_points_match_the_closed_forms(method):
+    cases = [(kw, linear_transmittance_db, EXTREME_TOL) for kw in EXTREME_LINEAR]
+    cases += [(kw, pinned_transmittance_db, EXTREME_TOL_PINNED) for kw in EXTREME_PINNED]
+    pts = [{**EXTREME_BASE, **kw} for kw, _, _ in cases]
+    for (kw, ref, tol), rec in zip(cases, simulate_chunk(pts, {"method": method}), strict=True):
+        assert not rec["failed"], (kw, rec["reason"])
+        assert rec["outcome"] in ("linear", "periodic") and rec["response_period"] == 1, kw
+        expected = ref(CellParams(**{**EXTREME_BASE, **kw}))
+        assert rec["transmittance_db"] == pytest.approx(expected, abs=tol[method]), kw
 
 
 def _energy(state: np.ndarray, M: np.ndarray, K: np.ndarray) -> np.ndarray:

@@ -61,10 +61,16 @@ def call_first_root(c, lam, off, t0, t1, tol=1e-13):
     return first_root(c, lam, len(c), off, t0, t1, tol, stack, w4)
 
 
-def test_first_root_agrees_with_dense_sampling_on_random_sums():
-    rng = np.random.default_rng(20261122)
+# The dense reference costs ~20 ms a case: a sample in the fast tier, the full count in CI.
+CASES = [60, pytest.param(300, marks=pytest.mark.slow)]
+STIFF_CASES = [15, pytest.param(60, marks=pytest.mark.slow)]
+
+
+@pytest.mark.parametrize("n", CASES)
+def test_first_root_agrees_with_dense_sampling_on_random_sums(n):
+    rng = np.random.default_rng(20261122 + n)
     decided = with_root = 0
-    for _ in range(300):
+    for _ in range(n):
         c, lam, off = random_sum(rng, int(rng.integers(1, 6)))
         t1 = float(rng.uniform(0.5, 6.0))
         ref, fmin = first_root_ref(c, lam, off, 0.0, t1)
@@ -82,7 +88,8 @@ def test_first_root_agrees_with_dense_sampling_on_random_sums():
                 assert got < ref
             decided += 1
             with_root += 1
-    assert decided >= 290 and 60 <= with_root <= 240  # both kinds were really exercised
+    # nearly every case decided, and both kinds (root, no root) were really exercised
+    assert decided >= n * 29 // 30 and n // 5 <= with_root <= n * 4 // 5
 
 
 def test_reduced_and_full_conjugate_forms_give_the_same_roots():
@@ -155,12 +162,13 @@ def test_phi1_is_the_integral_of_the_exponential(x):
     assert phi1(complex(x), ln) == pytest.approx(ref, rel=1e-9, abs=1e-12)
 
 
-def test_stiff_modes_are_bounded_by_their_size_and_roots_still_found():
+@pytest.mark.parametrize("n", STIFF_CASES)
+def test_stiff_modes_are_bounded_by_their_size_and_roots_still_found(n):
     # a slow sum plus one mode turning ~100 cycles over the interval: the Hermite bound of the
     # whole sum is useless, the split search still proves clear pieces and finds the roots
-    rng = np.random.default_rng(17)
+    rng = np.random.default_rng(17 + n)
     decided = with_root = 0
-    for _ in range(60):
+    for _ in range(n):
         c, lam, off = random_sum(rng, 2)
         c = np.append(c, 2e-3 * (rng.normal() + 1j * rng.normal()))
         lam = np.append(lam, -rng.uniform(0.0, 2.0) + 1j * rng.uniform(150.0, 250.0))
@@ -176,4 +184,4 @@ def test_stiff_modes_are_bounded_by_their_size_and_roots_still_found():
             assert f_ref(c, lam, off, np.array([got]))[0] <= 1e-9 * scale
             decided += 1
             with_root += 1
-    assert decided >= 55 and 5 <= with_root <= 55
+    assert decided >= n * 11 // 12 and max(1, n // 12) <= with_root <= n * 11 // 12

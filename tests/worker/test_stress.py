@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from worker.model import CellParams, assemble, linear_transmittance_db, pinned_transmittance_db
+from worker.model import CellParams, assemble, pinned_transmittance_db
 from worker.simulate import SolverSettings, simulate_chunk, simulate_point
 from worker.solvers.euler import check_stable
 from worker.solvers.euler import default_steps as euler_default_steps
@@ -13,9 +13,6 @@ from worker.solvers.settings import MAX_STEPS_PER_PERIOD
 
 BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, gamma_r=0.85)
 METHODS = ("exponential", "event", "euler")
-# Γ tolerance (dB) against the closed forms at default settings, per method.
-TOL = {"exponential": 1e-4, "event": 1e-6, "euler": 0.05}
-TOL_PINNED = {"exponential": 1e-3, "event": 1e-5, "euler": 0.05}
 
 
 def assert_clean(rec: dict) -> None:
@@ -55,44 +52,16 @@ def test_extreme_points_are_finite_or_failed_with_a_reason(method):
         assert not rec["failed"], (label, rec["reason"])
 
 
-# Closed forms at extreme parameters: huge gaps (linear) and zero gaps (pinned).
-LINEAR = [
-    {"theta": 1e-3, "g1": 1e6, "g2": 1e6},
-    {"theta": 1e3, "g1": 1e6, "g2": 1e6},
-    {"sigma": 10.0, "g1": 1e6, "g2": 1e6, "coupling": "full"},
-    {"gamma_r": 0.01, "g1": 1e6, "g2": 1e6},
-    {"gamma_r": 50.0, "xi": 0.5, "g1": 1e6, "g2": 1e6, "coupling": "full"},
-    {"xi": 0.5, "gamma_s": 10.0, "g1": 1e6, "g2": 1e6},
-]
-PINNED = [
-    {"g1": 0.0, "g2": 0.0, "sigma": 1e-4},
-    {"g1": 0.0, "g2": 0.0, "sigma": 10.0, "coupling": "full"},
-    {"g1": 0.0, "g2": 0.0, "gamma_s": 0.1, "gamma_r": 2.0},
-    {"g1": 0.0, "g2": 0.0, "xi": 0.5, "modes": 1, "coupling": "full"},
-]
-
-
-@pytest.mark.parametrize("method", METHODS)
-def test_extreme_points_match_the_closed_forms(method):
-    cases = [(kw, linear_transmittance_db, TOL) for kw in LINEAR]
-    cases += [(kw, pinned_transmittance_db, TOL_PINNED) for kw in PINNED]
-    pts = [{**BASE, **kw} for kw, _, _ in cases]
-    for (kw, ref, tol), rec in zip(cases, simulate_chunk(pts, {"method": method}), strict=True):
-        assert_clean(rec)
-        assert rec["outcome"] in ("linear", "periodic") and rec["response_period"] == 1, kw
-        expected = ref(CellParams(**{**BASE, **kw}))
-        assert rec["transmittance_db"] == pytest.approx(expected, abs=tol[method]), kw
-
-
 @pytest.mark.parametrize("method", ["exponential", "event"])
 def test_thirty_modes_pinned_and_impacting(method):
     p = CellParams(**{**BASE, "modes": 30, "g1": 0.0, "g2": 0.0})
     r = simulate_point(p, SolverSettings(method=method))
     assert r.transmittance_db == pytest.approx(pinned_transmittance_db(p), abs=1e-3)
-    rec = simulate_chunk([{**BASE, "modes": 30}], {"method": method})[0]
-    assert_clean(rec)
-    # modal convergence at this point: Γ(30) within 1e-3 dB of Γ(5) (measured 4.7e-4)
-    assert rec["transmittance_db"] == pytest.approx(13.6135, abs=1e-3)
+    rec30, rec5 = simulate_chunk([{**BASE, "modes": 30}, BASE], {"method": method})
+    assert_clean(rec30)
+    assert rec30["outcome"] == rec5["outcome"] == "periodic"
+    # modal convergence at this impacting point: Γ(30) within 1e-3 dB of Γ(5) (measured 4.7e-4)
+    assert rec30["transmittance_db"] == pytest.approx(rec5["transmittance_db"], abs=1e-3)
 
 
 def test_paper_coupling_at_theta_1e3_diverges_and_every_method_says_so_quickly():

@@ -1,13 +1,14 @@
-"""``/regressions``: the catalogued nightly regression reports."""
+"""``/regressions``: the catalogued nightly regression reports, and running the suite now."""
 
 from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Query
+from fastapi import APIRouter, HTTPException, Path, Query, Request, Response
 from fastapi.responses import PlainTextResponse
 
-from service.api.deps import CatalogueDep
+from service.api.deps import CatalogueDep, JobsDep
+from service.api.nightly import NightlyBusy, NightlyRunner
 from service.api.schemas import ErrorOut, RegressionList, RegressionOut
 
 router = APIRouter(prefix="/regressions", tags=["regressions"])
@@ -26,6 +27,38 @@ def list_regressions(
     """Nightly regression runs, newest first."""
     items, total = catalogue.list_regressions(limit=limit, offset=offset)
     return {"items": items, "total": total, "limit": limit, "offset": offset}
+
+
+@router.post(
+    "",
+    status_code=202,
+    response_model=RegressionOut,
+    responses={
+        401: _ERRORS[401],
+        409: {"model": ErrorOut, "description": "a nightly run is in progress"},
+        503: {"model": ErrorOut, "description": "the service's job runner is not running"},
+    },
+)
+def start_regression(
+    request: Request, response: Response, catalogue: CatalogueDep, jobs: JobsDep
+) -> dict[str, Any]:
+    """Run the nightly suite now, through the service's own job queue.
+
+    Every study of the suite is queued like a user's study (``GET /studies?name=nightly``),
+    tagged with this run (``nightly-<time>``) so it is computed afresh. The report is
+    ``GET /regressions/{id}`` once the run has finished (``finished_at`` set).
+    """
+    if not jobs.running:
+        raise HTTPException(503, "the service's job runner is not running; no study would run")
+    runner: NightlyRunner = request.app.state.nightly_runner
+    try:
+        reg_id = runner.start(trigger="api")
+    except NightlyBusy as exc:
+        raise HTTPException(409, str(exc)) from None
+    response.headers["Location"] = f"/regressions/{reg_id}"
+    rec = catalogue.get_regression(reg_id)
+    assert rec is not None
+    return rec
 
 
 @router.get(

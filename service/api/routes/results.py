@@ -36,7 +36,7 @@ from service.studies.dataset import (
     open_results,
     results_from_records,
 )
-from service.studies.schema import Study, parse_study
+from service.studies.schema import Study, study_from_canonical
 from service.studies.variables import FREQUENCY_AXES, MODEL_AXES, default_x
 from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS
 
@@ -80,7 +80,7 @@ _cache = _Cache()
 
 def _study(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study]:
     rec = study_or_404(catalogue, study_id)
-    return rec, parse_study(rec["definition"], max_points=max(rec["points_total"], 1))
+    return rec, study_from_canonical(rec["definition"], source=f"study {study_id}")
 
 
 def load_dataset(

@@ -51,10 +51,14 @@ class App:
 
 
 @pytest.fixture
-def make_app(tmp_path: Path, catalogue_url: str, dask_address: str) -> Iterator[Any]:
+def make_app(tmp_path: Path, catalogue_url: str, request: pytest.FixtureRequest) -> Iterator[Any]:
+    """An app factory; the real cluster is started only for an app that runs jobs (those tests
+    are marked slow: without jobs the API is exercised in process, with no cluster)."""
+
     def make(run_jobs: bool = False, **kw: Any) -> App:
+        scheduler = request.getfixturevalue("dask_address") if run_jobs else None
         s = Settings(data_dir=tmp_path / "data", database_url=catalogue_url,
-                     scheduler=dask_address, **kw)  # fmt: skip
+                     scheduler=scheduler, **kw)  # fmt: skip
         return App(s, run_jobs)
 
     yield make
@@ -244,6 +248,7 @@ def _wait(client: Client, sid: str, timeout: float = 180) -> dict[str, Any]:
     return client.wait(sid, progress=False, timeout=timeout, poll=0.2)
 
 
+@pytest.mark.slow
 def test_run_matches_runner_and_results_routes(make_app: Any, tmp_path: Path) -> None:
     d = tiny_study(name="served")
     with make_app(run_jobs=True) as app:
@@ -293,6 +298,7 @@ def test_run_matches_runner_and_results_routes(make_app: Any, tmp_path: Path) ->
         assert (files / "results.nc").is_file()
 
 
+@pytest.mark.slow
 def test_cancel_running_study_keeps_finished_chunks(make_app: Any) -> None:
     d = tiny_study(name="long", num=120, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)  # 480 points
     with make_app(run_jobs=True) as app:

@@ -25,6 +25,9 @@ from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from tests.service.helpers import SLOW_SOLVER, comparable, tiny_study
 
+# real `impactcell serve` processes and whole studies: the slow tier
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[3]
 
 

@@ -58,6 +58,7 @@ def test_serve_rejects_bad_settings(capsys, monkeypatch) -> None:
     assert "nightly_cron" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # the demo study on an embedded cluster
 def test_demo_writes_map_and_dataset(tmp_path: Path, capsys) -> None:
     f = tmp_path / "demo.yaml"
     d = tiny_study(name="demo-small", num=10, gaps=(0.1, 0.5))

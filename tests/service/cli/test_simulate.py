@@ -1,11 +1,14 @@
-"""The command line as a user runs it (real subprocesses)."""
+"""The command line: in process (``main(argv)``, fast), and once as a real subprocess."""
 
+import io
 import json
 import os
 import re
 import subprocess
 import sys
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -22,11 +25,23 @@ REQUIRED = {
 }  # fmt: skip
 
 
-def run(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+def subprocess_run(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """The CLI as a user runs it: a new Python process."""
     return subprocess.run(
         [sys.executable, "-m", "service.cli", *args], capture_output=True, text=True, timeout=600,
         cwd=ROOT, env=env,
     )  # fmt: skip
+
+
+def run(*args: str) -> SimpleNamespace:
+    """The CLI in this process: exit status, stdout and stderr as a subprocess would give."""
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:  # argparse's own errors
+            code = exc.code if isinstance(exc.code, int) else 2
+    return SimpleNamespace(returncode=code or 0, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def test_point_json_has_every_field_and_the_right_number():
@@ -122,14 +137,23 @@ def test_warmup_loads_or_compiles_the_kernels(capsys: pytest.CaptureFixture[str]
 def test_warmup_fills_an_empty_cache_then_loads_it(tmp_path: Path) -> None:
     # A fresh numba cache: the first warmup compiles (and says so), the second only loads.
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
-    first = run("warmup", "--method", "euler", env=env)
+    first = subprocess_run("warmup", "--method", "euler", env=env)
     assert first.returncode == 0, first.stderr
     assert "euler: compiling (once per machine) ..." in first.stdout
     assert "euler: ready in" in first.stdout and "(cached on disk)" in first.stdout
     assert list((tmp_path / "numba").rglob("*.nbi")), "no numba cache index written"
-    again = run("warmup", "--method", "euler", env=env)
+    again = subprocess_run("warmup", "--method", "euler", env=env)
     assert again.returncode == 0, again.stderr
     assert "euler: loading from numba's cache ..." in again.stdout
+
+
+@pytest.mark.slow
+def test_the_console_command_runs_in_a_new_process():
+    out = subprocess_run("point", "--gamma-r", "1.3", "--gap", "1e6", "--json")
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["outcome"] == "linear"
+    bad = subprocess_run("point", "--theta", "-1")
+    assert bad.returncode == 2 and "theta must be > 0, got -1.0" in bad.stderr
 
 
 def test_ci_runs_the_readme_test_command():

@@ -1,7 +1,9 @@
-"""``impactcell run``: settings from its flags over IMPACTCELL_* variables (exit 2 when bad)."""
+"""``impactcell run``: settings from its flags over IMPACTCELL_* variables (exit 2 when bad);
+shipped studies by name (``impactcell run quick``, ``impactcell studies``)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -34,3 +36,51 @@ def test_a_bad_variable_exits_2_naming_the_field(
     monkeypatch.setenv("IMPACTCELL_MAX_POINTS", "lots")
     assert main(["run", str(study_file)]) == 2
     assert "max_points" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- shipped studies
+
+
+def test_studies_lists_every_shipped_study_with_its_description(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from service.studies.schema import load_study
+    from service.studies.shipped import shipped_studies
+
+    assert main(["studies"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    shipped = shipped_studies()
+    assert len(lines) == len(shipped)
+    for line, (name, path) in zip(lines, shipped.items(), strict=True):
+        study = load_study(path)
+        assert line.startswith(name + " ")
+        assert f"{study.size:,} points" in line
+        assert line.endswith(study.description.strip().splitlines()[0])
+    assert main(["studies", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in rows] == list(shipped)
+    assert {"name", "points", "description"} == set(rows[0])
+
+
+def test_an_unknown_study_name_lists_the_shipped_ones(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "quik", "--serial"]) == 2
+    err = capsys.readouterr().err
+    assert "'quik' is neither a study file nor a shipped study" in err
+    assert "demo-fig5, experiment-table1, paper-fig5-gaps, paper-fig6-effective-mass, quick" in err
+    assert not (tmp_path / "data").exists()
+
+
+@pytest.mark.slow
+def test_run_a_shipped_study_by_name_from_any_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)  # no studies/ folder here
+    out = tmp_path / "out"
+    args = ["run", "paper-fig6-effective-mass", "--serial", "--no-progress", "--json"]
+    assert main([*args, "--out", str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["points"] == 25 and Path(summary["path"]).is_file()
+    assert Path(summary["path"]).is_relative_to(out)

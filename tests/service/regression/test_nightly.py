@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import time
 from pathlib import Path
 from typing import Any
 
@@ -19,58 +18,31 @@ import xarray as xr
 from service.cli import main
 from service.regression.compare import compare
 from service.regression.report import NightlyReport
-from service.regression.run import run_suite
+from service.regression.run import (
+    check_baseline_folder,
+    evaluate,
+    run_suite,
+    tagged,
+    write_baseline,
+)
 from service.regression.spec import DEFAULT_IRREGULAR, IrregularCheck, RegressionSpec
-from service.regression.suite import SuiteError, load_suite
+from service.regression.suite import SuiteError, load_suite, suite_folders
 from service.studies.dataset import encoding, open_results
+from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from service.studies.variables import outcome_attrs, outcome_codes, outcome_names
+from tests.service.helpers import TINY, write_suite
 from worker.simulate import SOLVER_VERSION
 from worker.solvers.settings import OUTCOMES
 
 ROOT = Path(__file__).resolve().parents[3]
-
-TINY = """\
-name: tiny
-model: {coupling: paper, modes: 3, xi: 0.05}
-solver: {steps_per_period: 512, max_periods: 200, periodicity_tol: 1.0e-6, window: 10}
-grid:
-  gamma_r: [0.5, 1.2, 2.0, 3.0, 3.6, 4.8]
-  gap: [0.1, 0.5]
-  theta: 0.3
-  sigma: 0.05
-  gamma_s: 1.0
-regression:
-  tolerances:
-    theta_eff: {abs: 1.0e-3, rel: 1.0e-3}
-"""
-
-TINY_EULER = """\
-name: tiny-euler
-model: {coupling: full, modes: 3, xi: 0.05}
-solver: {method: euler, steps_per_period: 256, max_periods: 300, window: 10}
-grid:
-  gamma_r: [1.0, 2.0, 3.0]
-  g1: 0.1
-  g2: 0.3
-  theta: 0.3
-  sigma: 0.05
-  gamma_s: 1.0
-"""
-
-
-def _write_suite(folder: Path) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "tiny.yaml").write_text(TINY, encoding="utf-8")
-    (folder / "tiny-euler.yaml").write_text(TINY_EULER, encoding="utf-8")
-    return folder
 
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny suite and baselines made from it (once per module)."""
     root = tmp_path_factory.mktemp("nightly")
-    _write_suite(root / "suite")
+    write_suite(root / "suite")
     report = run_suite(
         root / "suite",
         root / "baselines",
@@ -303,15 +275,67 @@ def test_url_mode_runs_fresh_through_a_real_service(
         assert report.ok, report.to_markdown()
         assert report.mode == server.url
         assert "summary" in report.to_json() and "no regressions" in report.summary()
-        time.sleep(1.1)  # a new timestamped run folder
-        again = _run(suite, url=server.url, token="t0k")
+        again = _run(suite, url=server.url, token="t0k")  # at once: the same second, maybe
         assert again.ok
         with Client(server.url, token="t0k") as c:
             studies = c.list()
-        # Two suite runs of two studies: four studies, none served from an earlier run.
-        assert len(studies) == 4 and all(r["status"] == "finished" for r in studies)
+            # Two suite runs of two studies: four studies, none served from an earlier run;
+            # each run's tag is in the definition, the description is the file's.
+            assert len(studies) == 4 and all(r["status"] == "finished" for r in studies)
+            tags = {r["definition"]["tag"] for r in studies}
+            assert len(tags) == 2 and all(t.startswith("nightly-") for t in tags)
+            assert all(r["definition"]["description"] == "" for r in studies)
+            # A user's untagged submission of the same definition is a study of its own, and
+            # submitting it again returns that one (cached, no second run).
+            entry = load_suite(suite["suite"])[0]
+            first = c.submit(entry.study.canonical())
+            assert first["id"] == entry.study.id and first["id"] not in {r["id"] for r in studies}
+            c.wait(first["id"], progress=False)
+            assert c.submit(entry.study.canonical())["id"] == first["id"]
+            assert len(c.list()) == 5
     finally:
         server.stop()
+
+
+def test_a_tagged_run_is_compared_with_untagged_baselines(
+    suite: dict[str, Path], tmp_path: Path
+) -> None:
+    entry = {e.stem: e for e in load_suite(suite["suite"])}["tiny"]
+    study = tagged(entry.study, "nightly-20260101T020000Z")
+    assert study.tag == "nightly-20260101T020000Z" and study.id != entry.study.id
+    assert {**study.canonical(), "tag": None} == {**entry.study.canonical(), "tag": None}
+    ds = open_results(run_study(study, suite["data"], serial=True).path)
+    cmp = evaluate(entry, ds, "here", suite["baselines"])
+    assert cmp.status == "passed", cmp.to_json()
+    assert not any("tag" in n for n in cmp.notes)  # a label, like name and description
+    # A baseline cut from a tagged run records the untagged definition and id.
+    write_baseline(ds, tmp_path / "b.nc", entry.spec)
+    with xr.open_dataset(tmp_path / "b.nc") as b:
+        assert json.loads(b.attrs["study"]) == entry.study.canonical()
+        assert b.attrs["study_id"] == entry.study.id
+
+
+def test_suite_folders_default_to_the_shipped_suite(tmp_path: Path) -> None:
+    assert suite_folders() == (ROOT / "studies" / "nightly", ROOT / "studies" / "baselines")
+    assert suite_folders(tmp_path / "s") == (tmp_path / "s", tmp_path / "baselines")
+    assert suite_folders(tmp_path / "s", tmp_path / "b") == (tmp_path / "s", tmp_path / "b")
+    assert suite_folders(None, tmp_path / "b") == (ROOT / "studies" / "nightly", tmp_path / "b")
+
+
+def test_an_installed_package_never_writes_its_shipped_baselines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import service.regression.run as run_module
+
+    monkeypatch.setattr(run_module, "in_source_checkout", lambda: False)
+    args = ["nightly", "--update-baseline", "--data-dir", str(tmp_path / "d"), "--quiet"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "installed package's copy of the shipped baselines" in err
+    assert "--baselines DIR" in err and str(ROOT / "studies" / "baselines") in err
+    assert not (tmp_path / "d").exists()  # refused before anything ran
+    check_baseline_folder(tmp_path / "b", update=True)  # an explicit folder is fine
+    check_baseline_folder(ROOT / "studies" / "baselines", update=False)  # reading is fine
 
 
 # --------------------------------------------------------------------------- bad input
@@ -378,7 +402,7 @@ def test_bad_suite_exits_2_with_a_message(
 
 
 def test_regression_block_does_not_change_the_study_id(tmp_path: Path) -> None:
-    folder = _write_suite(tmp_path / "suite")
+    folder = write_suite(tmp_path / "suite")
     entry = {e.stem: e for e in load_suite(folder)}["tiny"]
     import yaml
 
@@ -585,11 +609,12 @@ def test_shipped_suite_covers_what_it_claims() -> None:
 
 @pytest.mark.slow
 def test_shipped_suite_passes_against_shipped_baselines(tmp_path: Path) -> None:
+    # The defaults: the shipped suite and baselines, through the package-data accessor.
     report = run_suite(
-        ROOT / "studies" / "nightly",
-        ROOT / "studies" / "baselines",
         data_dir=tmp_path / "data",
         report_dir=tmp_path / "report",
         workers=2,
     )
     assert report.ok, report.to_markdown()
+    assert report.suite == str(ROOT / "studies" / "nightly")
+    assert report.baselines == str(ROOT / "studies" / "baselines")

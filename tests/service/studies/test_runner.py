@@ -56,7 +56,7 @@ def _study(name: str = "runner", **extra: Any) -> Any:
 
 
 @pytest.fixture(scope="module")
-def client() -> Iterator[Any]:
+def cluster_client() -> Iterator[Any]:
     from dask.distributed import Client, LocalCluster
 
     cluster = LocalCluster(
@@ -70,13 +70,13 @@ def client() -> Iterator[Any]:
         cluster.close()
 
 
-def test_local_cluster_matches_serial(tmp_path: Path, client: Any) -> None:
+def test_local_cluster_matches_serial(tmp_path: Path, cluster_client: Any) -> None:
     study = _study()
     seen: list[tuple[int, int]] = []
     dist = run_study(
         study,
         tmp_path / "d",
-        client=client,
+        client=cluster_client,
         chunk_size=5,
         progress=lambda d, t: seen.append((d, t)),
     )
@@ -89,7 +89,7 @@ def test_local_cluster_matches_serial(tmp_path: Path, client: Any) -> None:
     assert not list(StudyStore(tmp_path / "d", study).chunk_dir.glob("*.npz"))
 
 
-def test_failed_points_do_not_fail_the_study(tmp_path: Path, client: Any) -> None:
+def test_failed_points_do_not_fail_the_study(tmp_path: Path, cluster_client: Any) -> None:
     # Euler at 256 steps a period is unstable for γ_r = 0.2 (Δτ·ω̃_max > 2), fine for γ_r >= 1.
     study = parse_study(
         {
@@ -104,34 +104,34 @@ def test_failed_points_do_not_fail_the_study(tmp_path: Path, client: Any) -> Non
             },
         }  # fmt: skip
     )
-    s = run_study(study, tmp_path, client=client, chunk_size=2)
+    s = run_study(study, tmp_path, client=cluster_client, chunk_size=2)
     ds = open_results(s.path)
     assert s.failed == 1 and bool(ds["failed"].sel(gamma_r=0.2))
     assert "unstable" in str(ds["reason"].sel(gamma_r=0.2).values)
     assert not ds["failed"].sel(gamma_r=[1.0, 2.0]).any()
 
 
-def test_resume_computes_only_missing(tmp_path: Path, client: Any) -> None:
+def test_resume_computes_only_missing(tmp_path: Path, cluster_client: Any) -> None:
     study = _study("resume")
     store = StudyStore(tmp_path, study)
     store.prepare()
     solver = study.solver.settings().__dict__
     for a, b in [(0, 7), (20, 30)]:
         store.write_chunk(a, b, simulate_chunk(study.points(a, b), solver))
-    s = run_study(study, tmp_path, client=client, chunk_size=8)
+    s = run_study(study, tmp_path, client=cluster_client, chunk_size=8)
     assert s.computed == study.size - 17
     ref = run_study(study, tmp_path / "ref", serial=True)
     xr.testing.assert_identical(
         comparable(open_results(s.path)), comparable(open_results(ref.path))
     )
-    again = run_study(study, tmp_path, client=client)
+    again = run_study(study, tmp_path, client=cluster_client)
     assert again.reused and again.computed == 0
 
 
-def test_quick_study_runs(tmp_path: Path, client: Any) -> None:
+def test_quick_study_runs(tmp_path: Path, cluster_client: Any) -> None:
     study = load_study(ROOT / "studies" / "quick.yaml")
     assert study.solver.method == "event"  # the worker's default, not set in the file
-    s = run_study(study, tmp_path, client=client)
+    s = run_study(study, tmp_path, client=cluster_client)
     assert s.points == study.size and s.failed == 0
     ds = open_results(s.path)
     assert ds["transmittance_db"].notnull().all()
@@ -215,12 +215,12 @@ def test_workers_get_one_blas_thread() -> None:
         assert int(env[var]) == 1, var
 
 
-def test_worker_warm_up_uses_the_default_method(client: Any) -> None:
+def test_worker_warm_up_uses_the_default_method(cluster_client: Any) -> None:
     import inspect
 
     assert inspect.signature(runner.warm_up).parameters["method"].default == "event"
-    runner.warm_up(client)  # compiles or loads in every worker; returns once all are done
-    cached = client.run(lambda: __import__("worker.simulate").simulate._warm.copy())
+    runner.warm_up(cluster_client)  # compiles or loads in every worker; returns once all are done
+    cached = cluster_client.run(lambda: __import__("worker.simulate").simulate._warm.copy())
     assert all("event" in methods for methods in cached.values())
 
 
@@ -228,6 +228,7 @@ def _chunk_files(folder: Path) -> list[Path]:
     return list(folder.glob("*.npz")) if folder.is_dir() else []
 
 
+@pytest.mark.slow  # a real `impactcell run` process, killed and resumed
 def test_sigkill_and_resume(tmp_path: Path) -> None:
     study_file = tmp_path / "kill.yaml"
     study_file.write_text(

@@ -219,7 +219,7 @@ def test_new_solver_settings_are_settable_and_validated() -> None:
     )  # fmt: skip
     assert parse_study(d).id != parse_study(_base()).id
     for solver, path, text in [
-        ({"stat_tol_db": -1}, "solver", "stat_tol_db must be in (0, 100), got -1"),
+        ({"stat_tol_db": -1}, "solver.stat_tol_db", "stat_tol_db must be in (0, 100), got -1"),
         ({"lcp": "pivot"}, "solver.lcp", "'closed' or 'lemke'"),
         ({"early_stop": "sometimes"}, "solver.early_stop", "boolean"),
         ({"method": "rk4"}, "solver.method", "'event', 'exponential' or 'euler'"),

@@ -1,0 +1,94 @@
+"""The distribution: every package listed, and the shipped studies installed as package data.
+
+The ``slow`` test builds the wheel, installs it into a folder of its own and runs the commands
+that read the shipped files from elsewhere than the repository (the folder comes first on the
+path, so the editable install of this checkout is not what answers).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+
+
+def test_every_package_folder_is_listed() -> None:
+    found = {
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for top in ("worker", "service")
+        for p in (ROOT / top).rglob("__init__.py")
+    }
+    listed = set(CONFIG["packages"])
+    assert found <= listed, f"add to [tool.setuptools] packages: {sorted(found - listed)}"
+    assert listed - found == {"service.shipped"}
+    assert CONFIG["package-dir"] == {"service.shipped": "studies"}
+    assert (ROOT / "studies" / "__init__.py").is_file()
+
+
+def _shipped_files() -> set[str]:
+    root = ROOT / "studies"
+    globs = CONFIG["package-data"]["service.shipped"]
+    return {str(p.relative_to(root)) for g in globs for p in root.glob(g)}
+
+
+@pytest.mark.slow
+def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) -> None:
+    dist = tmp_path / "dist"
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist), str(ROOT)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert build.returncode == 0, build.stderr
+    (wheel,) = dist.glob("impactcell-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    shipped = _shipped_files()
+    assert {"quick.yaml", "nightly/table1.yaml", "baselines/table1.nc"} <= shipped
+    assert {f"service/shipped/{f}" for f in shipped} <= names
+    assert not any(n.startswith("studies/") for n in names)
+
+    site = tmp_path / "site"
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site),
+         str(wheel)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert install.returncode == 0, install.stderr
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(site), "IMPACTCELL_DATA_DIR": str(tmp_path / "data")}
+
+    def cli(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, "-m", "service.cli", *args], capture_output=True, text=True,
+            cwd=elsewhere, env=env, timeout=600,
+        )  # fmt: skip
+
+    where = subprocess.run(
+        [sys.executable, "-c", "from service.studies import shipped; import json; print(json.dumps("
+         "[str(shipped.shipped_root()), shipped.in_source_checkout()]))"],
+        capture_output=True, text=True, cwd=elsewhere, env=env, timeout=120,
+    )  # fmt: skip
+    assert where.returncode == 0, where.stderr
+    root, checkout = json.loads(where.stdout)
+    assert Path(root) == site / "service" / "shipped" and checkout is False
+
+    listed = cli("studies")
+    assert listed.returncode == 0, listed.stderr
+    assert [line.split()[0] for line in listed.stdout.splitlines()] == sorted(
+        Path(f).stem for f in shipped if "/" not in f and f.endswith(".yaml")
+    )
+    ran = cli("run", "paper-fig6-effective-mass", "--serial", "--no-progress", "--json")
+    assert ran.returncode == 0, ran.stderr
+    assert json.loads(ran.stdout)["points"] == 25
+    # The installed baselines are never written; an explicit folder is asked for.
+    refused = cli("nightly", "--update-baseline", "--quiet")
+    assert refused.returncode == 2 and "--baselines DIR" in refused.stderr

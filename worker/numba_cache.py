@@ -1,0 +1,67 @@
+"""Where numba keeps the compiled kernels: a directory keyed by the worker's source code.
+
+numba keys a cached kernel by the file that defines it (its path and modification time), not by
+the files of the functions it calls and compiles into itself. A kernel whose callee changed in
+another module would load stale machine code from the cache and compute with old code, and a
+fresh checkout (CI, a new machine) would compute something else. Keying the whole cache by a
+hash of every source file of ``worker/`` makes any change compile afresh, and identical sources
+share one cache wherever they are installed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+__all__ = ["configure", "source_key"]
+
+_ROOT = Path(__file__).resolve().parent
+
+
+def source_key() -> str:
+    """A short hash of every ``.py`` file of the worker package (paths and contents)."""
+    h = hashlib.sha256()
+    for path in sorted(_ROOT.rglob("*.py")):
+        h.update(path.relative_to(_ROOT).as_posix().encode())
+        h.update(b"\0")
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _writable(directory: Path) -> bool:
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError:
+        return False
+    return True
+
+
+def configure() -> str | None:
+    """Point numba's cache at ``<base>/numba-<source key>``; return it (None: numba's default).
+
+    The base is ``NUMBA_CACHE_DIR`` when set, else the package's own ``__pycache__`` (where
+    numba would cache anyway; older keys there are removed), else the user's cache directory.
+    """
+    from numba.core import config
+
+    key = f"numba-{source_key()}"
+    given = os.environ.get("NUMBA_CACHE_DIR")
+    local = _ROOT / "__pycache__"
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "impactcell"
+    for base in [Path(given)] if given else [local, user]:
+        target = base / key
+        if _writable(target):
+            if base == local:
+                for old in local.glob("numba-*"):
+                    if old.name != key:
+                        shutil.rmtree(old, ignore_errors=True)
+            # Read when each @njit(cache=True) function is defined, so this must run before the
+            # kernel modules are imported (worker/__init__.py calls it first).
+            config.CACHE_DIR = str(target)
+            return str(target)
+    return None
