@@ -16,7 +16,7 @@ from service.api.catalogue import Catalogue
 from service.api.deps import require_token
 from service.api.jobs import JobManager
 from service.api.nightly import NightlyRunner
-from service.api.routes import health, regressions, results, studies
+from service.api.routes import health, regressions, results, studies, timeseries
 from service.api.settings import Settings
 from service.studies.provenance import package_version
 
@@ -127,6 +127,7 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
     app.include_router(health.router)
     app.include_router(studies.router, dependencies=auth)
     app.include_router(results.router, dependencies=auth)
+    app.include_router(timeseries.router, dependencies=auth)
     app.include_router(regressions.router, dependencies=auth)
     app.add_middleware(BodyLimit, limit=lambda: settings.max_body_bytes)
 

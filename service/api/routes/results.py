@@ -1,8 +1,7 @@
-"""Results of a study: the NetCDF file, JSON slices, bandgap maps, plots and time series."""
+"""Results of a study: the NetCDF file, JSON slices, bandgap maps and plots."""
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import threading
@@ -10,7 +9,6 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import numpy as np
 import xarray as xr
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, Response
@@ -19,26 +17,21 @@ from starlette.background import BackgroundTask
 from service.analysis.bands import bandgap_json, bandgap_map
 from service.analysis.selection import (
     AnalysisError,
-    coordinate_index,
     select,
     slice_json,
-    values_text,
 )
 from service.api.catalogue import Catalogue
 from service.api.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.api.schemas import ErrorOut
 from service.studies.chunks import StudyStore
 from service.studies.dataset import (
-    FILL_FLOAT,
     encoding,
     json_text,
-    jsonable,
     open_results,
     results_from_records,
 )
 from service.studies.schema import Study, study_from_canonical
 from service.studies.variables import FREQUENCY_AXES, MODEL_AXES, default_x
-from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
 
@@ -50,7 +43,6 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 # Query parameters with a meaning of their own; every other one selects a coordinate value.
 _RESERVED = {"variable", "nearest", "x", "y", "threshold_db", "hue", "periods", "format"}
 _NETCDF = "application/x-netcdf"
-_MAX_HISTORY_PERIODS = 50
 
 
 class _Cache:
@@ -78,7 +70,7 @@ class _Cache:
 _cache = _Cache()
 
 
-def _study(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study]:
+def study_of(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study]:
     rec = study_or_404(catalogue, study_id)
     return rec, study_from_canonical(rec["definition"], source=f"study {study_id}")
 
@@ -87,7 +79,7 @@ def load_dataset(
     settings: Any, catalogue: Catalogue, study_id: str
 ) -> tuple[xr.Dataset, Path | None]:
     """The study's dataset, and its results file (``None`` when partial: from chunks only)."""
-    rec, study = _study(catalogue, study_id)
+    rec, study = study_of(catalogue, study_id)
     store = StudyStore(settings.data_dir, study)
     path = store.results_path
     if path.is_file() and (rec["status"] == "finished" or not store.has_retry_chunks()):
@@ -96,11 +88,11 @@ def load_dataset(
     return results_from_records(study, cols, computed=done), None
 
 
-def _coords(request: Request) -> dict[str, str]:
+def coords_of(request: Request) -> dict[str, str]:
     return {k: v for k, v in request.query_params.items() if k not in _RESERVED}
 
 
-def _json(payload: Any) -> Response:
+def json_response(payload: Any) -> Response:
     return Response(json_text(payload), media_type="application/json")
 
 
@@ -141,12 +133,12 @@ def data(
     """A JSON slice of one variable; other query parameters select coordinate values."""
     ds, path = load_dataset(settings, catalogue, study_id)
     try:
-        da = select(ds, variable, _coords(request), nearest=nearest)
+        da = select(ds, variable, coords_of(request), nearest=nearest)
         out = slice_json(da)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
     out["partial"] = path is None
-    return _json(out)
+    return json_response(out)
 
 
 @router.get("/bandgap", responses=_ERRORS)
@@ -163,13 +155,13 @@ def bandgap(
     """The bandgap map: Γ over x × y, where Γ < threshold, and the band edges in x per y."""
     ds, path = load_dataset(settings, catalogue, study_id)
     try:
-        m = bandgap_map(ds, x, y, threshold_db=threshold_db, sel=_coords(request),
+        m = bandgap_map(ds, x, y, threshold_db=threshold_db, sel=coords_of(request),
                         nearest=nearest)  # fmt: skip
         out = bandgap_json(m)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
     out["partial"] = path is None
-    return _json(out)
+    return json_response(out)
 
 
 @router.get(
@@ -193,7 +185,7 @@ def plot(
     from service.analysis import plots
 
     ds, _path = load_dataset(settings, catalogue, study_id)
-    sel = _coords(request)
+    sel = coords_of(request)
     xdim = x or default_x(ds.dims) or FREQUENCY_AXES[0]
     try:
         if kind == "transmittance":
@@ -217,110 +209,4 @@ def _default_y(ds: xr.Dataset, x: str) -> str | None:
     return str(others[0]) if others else None
 
 
-@router.get(
-    "/timeseries",
-    responses={
-        **_ERRORS,
-        200: {"content": {"application/json": {}, _NETCDF: {}}, "description": "histories"},
-    },
-)
-def timeseries(
-    request: Request,
-    study_id: StudyId,
-    catalogue: CatalogueDep,
-    periods: Annotated[int, Query(ge=1, le=_MAX_HISTORY_PERIODS)] = 5,
-    format: Literal["json", "netcdf"] = "json",  # noqa: A002 - the query parameter's name
-    nearest: bool = False,
-) -> Response:
-    """Recompute one point with time histories on (never stored); select it by coordinates."""
-    from worker.model import CellParams
-    from worker.simulate import POINT_KEYS, simulate_point
-
-    _, study = _study(catalogue, study_id)
-    try:
-        index, coords = _point_index(study, _coords(request), nearest)
-    except AnalysisError as exc:
-        raise HTTPException(422, str(exc)) from None
-    pt = study.points(index, index + 1)[0]
-    try:
-        params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
-        r = simulate_point(params, study.solver.settings(), history_periods=periods)
-    except ValueError as exc:
-        raise HTTPException(422, f"point {coords} cannot be simulated: {exc}") from None
-    hist = r.history or {}
-    result = {k: jsonable(v) for k, v in r.as_dict().items()}
-    if format == "netcdf":
-        return _history_netcdf(study_id, coords, hist, result)
-    series = {k: jsonable(v) for k, v in hist.items() if k not in ("state", "events")}
-    body = {"study_id": study_id, "coords": coords, "result": result, "periods": periods,
-            "series": series}  # fmt: skip
-    if "events" in hist:
-        body["events"] = {k: jsonable(v) for k, v in _event_columns(hist["events"]).items()}
-    return _json(body)
-
-
-def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int, dict[str, float]]:
-    """Flat index and coordinates of the grid point that ``sel`` picks (every varying axis)."""
-    dims = study.dims()
-    unknown = sorted(set(sel) - set(dims))
-    if unknown:
-        raise AnalysisError(
-            f"unknown coordinate {unknown[0]!r}; the study's axes are {', '.join(dims)}"
-        )
-    idx: list[int] = []
-    for name, values in dims.items():
-        if name in sel:
-            idx.append(coordinate_index(name, values, sel[name], nearest))
-        elif values.size == 1:
-            idx.append(0)
-        else:
-            raise AnalysisError(
-                f"{name} must be given to pick one point; values are {values_text(values)}"
-            )
-    coords = {name: float(v[i]) for (name, v), i in zip(dims.items(), idx, strict=True)}
-    flat = int(np.ravel_multi_index(tuple(idx), tuple(v.size for v in dims.values())))
-    return flat, coords
-
-
-def _event_columns(events: np.ndarray) -> dict[str, np.ndarray]:
-    """The event log as named columns (``column_<i>`` if its layout is not the known one)."""
-    ev = np.asarray(events, dtype=np.float64).reshape(len(events), -1)
-    names = list(EVENT_FIELDS) if ev.shape[1] == len(EVENT_FIELDS) else None
-    return {(names[i] if names else f"column_{i}"): ev[:, i] for i in range(ev.shape[1])}
-
-
-def _history_netcdf(
-    study_id: str, coords: dict[str, float], hist: dict[str, np.ndarray], result: dict[str, Any]
-) -> Response:
-    tau = np.asarray(hist.get("tau", np.zeros(0)))
-    data_vars: dict[str, Any] = {}
-    enc: dict[str, dict[str, Any]] = {}
-    for k, v in hist.items():
-        if k in ("tau", "state", "events"):
-            continue
-        a = np.asarray(v)
-        data_vars[k] = ("time", a, {"units": "1", "long_name": HISTORY_FIELDS.get(k, k)})
-        integer = a.dtype.kind in "iub"
-        enc[k] = {"zlib": True} if integer else {"_FillValue": FILL_FLOAT, "zlib": True}
-    if "events" in hist:
-        for k, v in _event_columns(hist["events"]).items():
-            name = f"event_{k}"
-            data_vars[name] = ("event", v, {"units": "1", "long_name": EVENT_FIELDS.get(k, k)})
-            enc[name] = {"_FillValue": FILL_FLOAT, "zlib": True}
-    ds = xr.Dataset(
-        data_vars,
-        coords={"time": ("time", tau, {"units": "1", "long_name": "non-dimensional time tau"})},
-        attrs={
-            "study_id": study_id,
-            "point": json.dumps(coords),
-            "result": json.dumps(result),
-        },  # fmt: skip
-    )
-    fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-ts-")
-    os.close(fd)
-    ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)
-    return FileResponse(tmp, media_type=_NETCDF, filename=f"{study_id}-timeseries.nc",
-                        background=BackgroundTask(os.unlink, tmp))  # fmt: skip
-
-
-__all__ = ["load_dataset", "router"]
+__all__ = ["coords_of", "json_response", "load_dataset", "router", "study_of"]
