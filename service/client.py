@@ -6,15 +6,21 @@
 >>> c.wait(rec["id"])
 >>> ds = c.dataset(rec["id"])
 >>> gaps = c.bandgap_map(rec["id"], x="gamma_r", y="gap", theta=0.3)
+
+Contract with the service: ``cancel`` is ``POST /studies/{id}/cancel`` (finished chunks kept),
+``delete`` is ``DELETE /studies/{id}`` (the study and its files removed), ``submit(...,
+resume=True)`` asks the service to resume an identical cancelled or failed study.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
+import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +37,7 @@ __all__ = [
     "PayloadTooLarge",
     "ServerError",
     "StudyFailed",
+    "StudyPage",
     "Unauthorized",
 ]
 
@@ -70,13 +77,30 @@ class ServerError(ClientError):
 
 
 class StudyFailed(Exception):
-    """``wait`` saw the study end ``failed`` or ``cancelled``."""
+    """``wait`` saw the study end ``failed`` or ``cancelled``; the message says how to resume."""
 
     def __init__(self, record: Mapping[str, Any]) -> None:
-        super().__init__(
-            f"study {record['id']} ended {record['status']}: {record.get('error') or ''}".strip()
+        sid, status = record["id"], record["status"]
+        text = f"study {sid} ended {status}"
+        if record.get("error"):
+            text += f": {record['error']}"
+        text += (
+            f"; its finished points are kept: resume it with Client.resume({sid!r}) or "
+            "Client.submit(definition, resume=True)"
         )
+        super().__init__(text)
         self.record = dict(record)
+
+
+class StudyPage(list):  # a list, so code written when list() returned one keeps working
+    """A page of ``Client.list``: a list of study records (as before) that also carries
+    ``total`` (studies matching, over all pages), ``limit`` and ``offset``."""
+
+    def __init__(self, items: Iterable[dict[str, Any]], total: int, limit: int, offset: int):
+        super().__init__(items)
+        self.total = total
+        self.limit = limit
+        self.offset = offset
 
 
 _BY_STATUS: dict[int, type[ClientError]] = {
@@ -135,34 +159,57 @@ class Client:
 
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         r = self._http.request(method, path, **kwargs)
-        if r.status_code >= 400:
-            try:
-                body = r.json()
-                message = str(body.get("detail", r.text))
-                problems = body.get("problems")
-            except (ValueError, AttributeError):
-                message, problems = r.text or r.reason_phrase, None
-            fallback = ServerError if r.status_code >= 500 else ClientError
-            cls = _BY_STATUS.get(r.status_code, fallback)
-            raise cls(r.status_code, message, problems)
+        _raise_for(r)
         return r
+
+    def _download(self, path: str, params: Mapping[str, Any] | None = None) -> xr.Dataset:
+        """Stream a NetCDF answer to a temporary file (never whole in memory), load it."""
+        fd, name = tempfile.mkstemp(suffix=".nc", prefix="impactcell-client-")
+        try:
+            with os.fdopen(fd, "wb") as fh, self._http.stream("GET", path, params=params) as r:
+                if r.status_code >= 400:
+                    r.read()
+                    _raise_for(r)
+                for block in r.iter_bytes(1 << 20):
+                    fh.write(block)
+            with xr.open_dataset(name, engine="netcdf4") as ds:
+                return ds.load()
+        finally:
+            os.unlink(name)
 
     # ------------------------------------------------------------------ studies
 
-    def submit(self, definition: Mapping[str, Any] | str | os.PathLike[str]) -> dict[str, Any]:
+    def submit(
+        self, definition: Mapping[str, Any] | str | os.PathLike[str], resume: bool = False
+    ) -> dict[str, Any]:
         """Submit a study (a mapping, or a path to a YAML/JSON file); returns its record.
 
-        Submitting an identical definition again returns the existing study.
+        Submitting an identical definition again returns the existing study. With ``resume``
+        (``POST /studies?resume=true``), an identical study that was cancelled or failed is
+        queued again to continue from its finished chunks instead of being returned as it is.
+        A NaN or infinite number in a mapping or JSON file raises :class:`InvalidRequest`
+        naming its path (``grid.gamma_r.start``) before anything is sent.
         """
+        params = {"resume": "true"} if resume else None
         if isinstance(definition, Mapping):
-            r = self._request("POST", "/studies", json=dict(definition))
+            _check_finite(definition)
+            # allow_nan=False: what _check_finite let through is standard JSON
+            body = json.dumps(dict(definition), allow_nan=False).encode("utf-8")
+            kind = "application/json"
         else:
             p = Path(definition)
             text = p.read_text(encoding="utf-8")
             kind = "application/json" if p.suffix.lower() == ".json" else "application/yaml"
-            r = self._request(
-                "POST", "/studies", content=text.encode("utf-8"), headers={"Content-Type": kind}
-            )
+            if kind == "application/json":
+                try:
+                    parsed = json.loads(text)
+                except ValueError:  # not JSON: the service says so, with its message
+                    parsed = None
+                _check_finite(parsed)
+            body = text.encode("utf-8")
+        r = self._request(
+            "POST", "/studies", content=body, headers={"Content-Type": kind}, params=params
+        )
         return r.json()
 
     def get(self, study_id: str) -> dict[str, Any]:
@@ -170,19 +217,34 @@ class Client:
         return self._request("GET", f"/studies/{study_id}").json()
 
     def list(
-        self, status: str | None = None, name: str | None = None, limit: int = 50, offset: int = 0
-    ) -> list[dict[str, Any]]:
-        """Studies, newest first."""
-        params: dict[str, Any] = {"limit": limit, "offset": offset}
+        self,
+        status: str | None = None,
+        name: str | None = None,
+        limit: int = 50,
+        offset: int = 0,
+        full: bool = False,
+    ) -> StudyPage:
+        """Studies, newest first: a :class:`StudyPage` (a list of records, as before, with
+        ``total``, ``limit`` and ``offset``); ``full`` includes each definition (else
+        ``None``)."""
+        params: dict[str, Any] = {"limit": limit, "offset": offset, "full": full}
         if status:
             params["status"] = status
         if name:
             params["name"] = name
-        return self._request("GET", "/studies", params=params).json()["items"]
+        body = self._request("GET", "/studies", params=params).json()
+        items = body["items"]
+        return StudyPage(items, int(body.get("total", len(items))), int(body.get("limit", limit)),
+                         int(body.get("offset", offset)))  # fmt: skip
 
     def cancel(self, study_id: str) -> dict[str, Any]:
-        """Cancel a queued or running study (finished chunks are kept)."""
-        return self._request("DELETE", f"/studies/{study_id}").json()
+        """Cancel a queued or running study (``POST /studies/{id}/cancel``): running work
+        stops, finished chunks are kept; ``resume`` continues it."""
+        return self._request("POST", f"/studies/{study_id}/cancel").json()
+
+    def delete(self, study_id: str) -> None:
+        """Remove a study and its files (``DELETE /studies/{id}``); it cannot be resumed."""
+        self._request("DELETE", f"/studies/{study_id}")
 
     def resume(self, study_id: str) -> dict[str, Any]:
         """Queue a cancelled or failed study again."""
@@ -226,50 +288,116 @@ class Client:
     # ------------------------------------------------------------------ results
 
     def dataset(self, study_id: str) -> xr.Dataset:
-        """The results as an in-memory ``xarray.Dataset`` (partial while the study runs)."""
-        r = self._request("GET", f"/studies/{study_id}/dataset")
-        return _open_netcdf_bytes(r.content)
+        """The results as an in-memory ``xarray.Dataset`` (partial while the study runs);
+        the file is streamed to disk first, never held whole in memory twice."""
+        return self._download(f"/studies/{study_id}/dataset")
 
     def data(self, study_id: str, variable: str = "transmittance_db", nearest: bool = False,
              **sel: float) -> xr.DataArray:  # fmt: skip
-        """A slice of one variable, selected by coordinate values."""
+        """A slice of one variable, selected by coordinate values.
+
+        Values keep their type: floats (NaN for missing), integers, booleans, strings
+        (``variable="reason"``); ``outcome`` is its flag codes with ``flag_values`` and
+        ``flag_meanings`` attributes. A slice over the service's limit (100,000 values) is
+        an :class:`InvalidRequest` saying what to select.
+        """
         params = {"variable": variable, "nearest": str(nearest).lower(), **_params(sel)}
         out = self._request("GET", f"/studies/{study_id}/data", params=params).json()
         coords = {k: np.asarray(v) for k, v in out["coords"].items()}
-        values = np.asarray(_none_to_nan(out["values"]), dtype=float)
+        values = _typed(out["values"], out.get("dtype", "float"))
         da = xr.DataArray(values, dims=out["dims"], coords={d: coords[d] for d in out["dims"]},
                           name=out["variable"])  # fmt: skip
+        for k, v in out.get("scalars", {}).items():
+            da = da.assign_coords({k: v})
         da.attrs.update(units=out.get("units", ""), long_name=out.get("long_name", ""))
+        if "flag_meanings" in out:
+            da.attrs.update(flag_values=np.asarray(out["flag_values"]),
+                            flag_meanings=" ".join(out["flag_meanings"]))  # fmt: skip
         return da
+
+    def data_csv(self, study_id: str, variable: str = "transmittance_db",
+                 nearest: bool = False, **sel: float) -> str:  # fmt: skip
+        """A slice as CSV text (long form: one row per value, a column per coordinate)."""
+        params = {"variable": variable, "nearest": str(nearest).lower(), "format": "csv",
+                  **_params(sel)}  # fmt: skip
+        return self._request("GET", f"/studies/{study_id}/data", params=params).text
 
     def bandgap_map(
         self,
         study_id: str,
-        x: str = "gamma_r",
+        x: str | None = None,
         y: str | None = None,
         threshold_db: float = 0.0,
         nearest: bool = False,
         **sel: float,
     ) -> xr.Dataset:
-        """The bandgap map: Γ over x × y, ``attenuating`` (Γ < threshold) and band edges."""
-        params: dict[str, Any] = {"x": x, "threshold_db": threshold_db,
-                                  "nearest": str(nearest).lower(), **_params(sel)}  # fmt: skip
-        if y is not None:
-            params["y"] = y
+        """The bandgap map: Γ over x × y, ``attenuating`` (Γ < threshold) and band edges.
+
+        ``x`` and ``y`` default as in the service (the frequency axis, then the first other
+        varying axis with few values; other axes at their first value). The attributes hold
+        the JSON's description: ``threshold_db``, ``x``, ``y``, ``edges`` and ``slice``
+        (JSON text).
+        """
+        params = self._bandgap_params(x, y, threshold_db, nearest, sel)
         out = self._request("GET", f"/studies/{study_id}/bandgap", params=params).json()
         return _bandgap_dataset(out)
 
-    def plot(self, study_id: str, kind: str = "bandgap", **params: Any) -> bytes:
-        """A PNG figure: ``transmittance``, ``bandgap`` or ``effective-mass``."""
+    def bandgap_json(
+        self,
+        study_id: str,
+        x: str | None = None,
+        y: str | None = None,
+        threshold_db: float = 0.0,
+        nearest: bool = False,
+        **sel: float,
+    ) -> dict[str, Any]:
+        """The bandgap document as the service sends it (plain JSON data, ``bandgap.json``):
+        it names its variable, axes (units, long names, values), threshold and the slice it
+        was taken at, with the map and the band edges."""
+        params = self._bandgap_params(x, y, threshold_db, nearest, sel)
+        return self._request("GET", f"/studies/{study_id}/bandgap", params=params).json()
+
+    def bandgap_csv(
+        self,
+        study_id: str,
+        x: str | None = None,
+        y: str | None = None,
+        threshold_db: float = 0.0,
+        nearest: bool = False,
+        **sel: float,
+    ) -> str:
+        """The band edges as CSV text, one row per band (``format=csv`` of ``/bandgap``)."""
+        params = self._bandgap_params(x, y, threshold_db, nearest, sel)
+        params["format"] = "csv"
+        return self._request("GET", f"/studies/{study_id}/bandgap", params=params).text
+
+    @staticmethod
+    def _bandgap_params(x: str | None, y: str | None, threshold_db: float, nearest: bool,
+                        sel: Mapping[str, Any]) -> dict[str, Any]:  # fmt: skip
+        params: dict[str, Any] = {"threshold_db": threshold_db, "nearest": str(nearest).lower(),
+                                  **_params(sel)}  # fmt: skip
+        if x is not None:
+            params["x"] = x
+        if y is not None:
+            params["y"] = y
+        return params
+
+    def plot(self, study_id: str, kind: str = "bandgap", fmt: str = "png", **params: Any) -> bytes:
+        """A figure, ``fmt`` ``png`` or ``svg``: ``transmittance``, ``bandgap`` or
+        ``effective-mass``. Axes not given are chosen by the service (named in the title)."""
+        if fmt not in ("png", "svg"):
+            raise ValueError(f"fmt must be png or svg, got {fmt!r}")
         return self._request(
-            "GET", f"/studies/{study_id}/plots/{kind}.png", params=_params(params)
+            "GET", f"/studies/{study_id}/plots/{kind}.{fmt}", params=_params(params)
         ).content
 
     def timeseries(self, study_id: str, periods: int = 5, nearest: bool = False,
-                   **point: float) -> dict[str, Any]:  # fmt: skip
-        """Recompute one point with time histories (JSON: ``series`` of lists, ``result``)."""
-        params = {"periods": periods, "nearest": str(nearest).lower(), **_params(point)}
-        return self._request("GET", f"/studies/{study_id}/timeseries", params=params).json()
+                   **point: float) -> xr.Dataset:  # fmt: skip
+        """Recompute one point with time histories: an ``xarray.Dataset`` over ``time`` (and
+        ``event`` for the event log); attributes ``point`` and ``result`` (JSON text)."""
+        params = {"periods": periods, "nearest": str(nearest).lower(), "format": "netcdf",
+                  **_params(point)}  # fmt: skip
+        return self._download(f"/studies/{study_id}/timeseries", params=params)
 
     def health(self) -> dict[str, Any]:
         """``GET /health``."""
@@ -291,6 +419,59 @@ class Client:
         """
         return self._request("POST", "/regressions").json()
 
+    def record_regression(self, report: Mapping[str, Any], markdown: str = "") -> dict[str, Any]:
+        """Catalogue the report of a suite run made elsewhere (``impactcell nightly --url``);
+        returns its record, listed by ``regressions()`` like the service's own runs."""
+        body = {"report": dict(report), "markdown": markdown}
+        return self._request("POST", "/regressions/reports", json=body).json()
+
+
+def _raise_for(r: httpx.Response) -> None:
+    """The error of an answer with status >= 400, carrying the server's message."""
+    if r.status_code < 400:
+        return
+    try:
+        body = r.json()
+        message = str(body.get("detail", r.text))
+        problems = body.get("problems")
+    except (ValueError, AttributeError):
+        message, problems = r.text or r.reason_phrase, None
+    fallback = ServerError if r.status_code >= 500 else ClientError
+    cls = _BY_STATUS.get(r.status_code, fallback)
+    raise cls(r.status_code, message, problems)
+
+
+def _check_finite(obj: Any, path: str = "") -> None:
+    """:class:`InvalidRequest` naming every NaN or infinite number's path, as the service would
+    (JSON has no NaN: sent as is, the service could only say the body is not JSON)."""
+    problems: list[dict[str, str]] = []
+
+    def walk(o: Any, p: str) -> None:
+        if isinstance(o, Mapping):
+            for k, v in o.items():
+                walk(v, f"{p}.{k}" if p else str(k))
+        elif isinstance(o, list | tuple):
+            for i, v in enumerate(o):
+                walk(v, f"{p}.{i}" if p else str(i))
+        elif isinstance(o, float | np.floating) and not math.isfinite(float(o)):
+            problems.append({"path": p, "message": f"must be a finite number, got {float(o)!r}"})
+
+    walk(obj, path)
+    if problems:
+        detail = "; ".join(f"{q['path']}: {q['message']}" for q in problems)
+        raise InvalidRequest(422, detail, problems)
+
+
+def _typed(values: Any, dtype: str) -> np.ndarray:
+    """The ``values`` of a JSON slice as an array of its ``dtype`` (null -> NaN for floats)."""
+    if dtype == "bool":
+        return np.asarray(values, dtype=bool)
+    if dtype == "int":
+        return np.asarray(values, dtype=np.int64)
+    if dtype == "str":
+        return np.asarray(values, dtype=object)
+    return np.asarray(_none_to_nan(values), dtype=float)
+
 
 def _params(sel: Mapping[str, Any]) -> dict[str, str]:
     return {k: repr(float(v)) if isinstance(v, float) else str(v) for k, v in sel.items()}
@@ -302,20 +483,6 @@ def _none_to_nan(values: Any) -> Any:
     if isinstance(values, list):
         return [_none_to_nan(v) for v in values]
     return np.nan if values is None else values
-
-
-def _open_netcdf_bytes(content: bytes) -> xr.Dataset:
-    import tempfile
-
-    # netCDF4 reads from a path; the file is loaded fully and removed.
-    with tempfile.NamedTemporaryFile(suffix=".nc", delete=False) as fh:
-        fh.write(content)
-        name = fh.name
-    try:
-        with xr.open_dataset(name, engine="netcdf4") as ds:
-            return ds.load()
-    finally:
-        os.unlink(name)
 
 
 def _bandgap_dataset(out: Mapping[str, Any]) -> xr.Dataset:
@@ -335,8 +502,14 @@ def _bandgap_dataset(out: Mapping[str, Any]) -> xr.Dataset:
             "x": x,
             "y": y or "",
             "edges": json.dumps(out["edges"]),
+            "slice": json.dumps(out.get("slice", {})),
         },  # fmt: skip
     )
+    for axis in (out.get("axes") or {}).values():  # units and long names of x and y
+        if axis:
+            ds[axis["name"]].attrs.update(units=axis["units"], long_name=axis["long_name"])
+    for k, info in (out.get("slice") or {}).items():
+        ds = ds.assign_coords({k: info["value"]})
     return ds
 
 

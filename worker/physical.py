@@ -44,13 +44,28 @@ TABLE1_FREQUENCIES_HZ: tuple[float, ...] = (
 
 
 # Field metadata (worker.checks): the allowed values, written once, read by the validation
-# below and by the study schema.
-_POS = {"gt": 0.0}
-_NONNEG = {"ge": 0.0}
-_OPT_POS = {**_POS, "optional": True}
-_OPT_NONNEG = {**_NONNEG, "optional": True}
+# below and by the study schema. ``gt``/``ge`` 0 is where the quantity makes sense; the other
+# bounds are generous physical ranges (a MEMS cantilever to a building-sized rig), so that a
+# unit slip (mm typed as m, GPa as Pa) or a 1e308 is refused while any real cell passes.
+# Each ``why`` says the range (the study schema shows it).
+def _si(lo: float, hi: float, why: str, *, zero: bool = False) -> dict[str, Any]:
+    if zero:  # zero is meaningful (a pinned tip, no damping)
+        return {"ge": 0.0, "le": hi, "why": why}
+    return {"gt": 0.0, "ge": lo, "le": hi, "why": why}
+
+
+_LENGTH = _si(1e-9, 1e3, "a beam dimension: 1 nm (a nanobeam's thickness) to 1 km")
+_DENSITY = _si(1.0, 1e5, "1 kg/m³ (aerogel) to 1e5 kg/m³, above every solid (osmium 22,590)")
+_MODULUS = _si(1e3, 1e13, "1 kPa (soft gels) to 1e13 Pa, above every solid (diamond ~1.2e12)")
+_MASS = _si(1e-15, 1e6, "1e-15 kg (a MEMS proof mass is ~1e-12) to 1000 t")
+_SPRING = _si(1e-6, 1e12, "1 µN/m to 1 TN/m, spanning MEMS suspensions to stiff mounts")
+_DAMPING = _si(0.0, 10.0, "0 (undamped) to 10, ten times critical", zero=True)
+_GAP = _si(0.0, 1e3, "0 (the tip pinned) to 1 km, far beyond any 'no stops' cell", zero=True)
+_AMPLITUDE = _si(1e-12, 100.0, "1 pm to 100 m of base displacement")
+_ACCELERATION = _si(1e-9, 1e7, "1 nm/s² to 1e7 m/s² (a million g, beyond shock testing)")
+_OPT = {"optional": True}
 #: The excitation frequency's rule (the argument of :meth:`PhysicalCell.to_model`).
-FREQUENCY_HZ: dict[str, float] = _POS
+FREQUENCY_HZ: dict[str, Any] = _si(1e-6, 1e9, "1 µHz to 1 GHz (MEMS resonators)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -63,34 +78,34 @@ class PhysicalCell:
     Parameters
     ----------
     length_m : float
-        Free length ``L`` of the cantilever, > 0.
+        Free length ``L`` of the cantilever, in [1e-9, 1e3] m.
     width_m : float
-        Width (breadth) ``b`` of the rectangular cross-section, > 0.
+        Width (breadth) ``b`` of the rectangular cross-section, in [1e-9, 1e3] m.
     thickness_m : float
-        Thickness ``h`` of the cross-section in the bending direction, > 0; the second moment
-        of area is ``I = b h³ / 12`` and the area ``A = b h``.
+        Thickness ``h`` of the cross-section in the bending direction, in [1e-9, 1e3] m; the
+        second moment of area is ``I = b h³ / 12`` and the area ``A = b h``.
     density_kg_m3 : float
-        Beam density ``ρ``, > 0.
+        Beam density ``ρ``, in [1, 1e5] kg/m³.
     youngs_modulus_pa : float
-        Beam Young's modulus ``E``, > 0.
+        Beam Young's modulus ``E``, in [1e3, 1e13] Pa.
     outer_mass_kg : float
-        Total rigid outer mass ``m_o``, > 0, including anything rigidly attached to it (an
-        accelerometer, for instance); see :meth:`from_added_mass`.
+        Total rigid outer mass ``m_o``, in [1e-15, 1e6] kg, including anything rigidly
+        attached to it (an accelerometer, for instance); see :meth:`from_added_mass`.
     spring_n_m : float
-        Stiffness ``k`` of the spring between base and outer mass, > 0.
+        Stiffness ``k`` of the spring between base and outer mass, in [1e-6, 1e12] N/m.
     gap_m : float or None
-        Clearance between the beam tip and each stop, >= 0 (0 pins the tip). Required unless
-        both ``gap1_m`` and ``gap2_m`` are given.
+        Clearance between the beam tip and each stop, in [0, 1e3] m (0 pins the tip).
+        Required unless both ``gap1_m`` and ``gap2_m`` are given.
     damping_ratio : float, optional
-        ``ξ >= 0``: the outer dashpot is ``c = 2 ξ ω_m m_o`` (and, per docs/model.md §3, the beam's
-        Rayleigh ratio unless the model is given another). Default 0.
+        ``ξ`` in [0, 10]: the outer dashpot is ``c = 2 ξ ω_m m_o`` (and, per docs/model.md §3,
+        the beam's Rayleigh ratio unless the model is given another). Default 0.
     gap1_m, gap2_m : float or None, optional
-        Clearances to stop 1 and stop 2 when they differ, >= 0; each defaults to ``gap_m``.
+        Clearances to stop 1 and stop 2 when they differ, in [0, 1e3] m; each defaults to ``gap_m``.
         Read the resolved pair from :attr:`gaps_m`.
     base_amplitude_m : float or None, optional
-        Base displacement amplitude ``U_g``, > 0, the same at every frequency.
+        Base displacement amplitude ``U_g``, in [1e-12, 100] m, the same at every frequency.
     base_acceleration_m_s2 : float or None, optional
-        Base acceleration amplitude ``a``, > 0, the same at every frequency; then
+        Base acceleration amplitude ``a``, in [1e-9, 1e7] m/s², the same at every frequency; then
         ``U_g = a / Ω²``. Exactly one of ``base_amplitude_m`` and ``base_acceleration_m_s2``
         must be given.
 
@@ -101,21 +116,21 @@ class PhysicalCell:
         is not given exactly once. The message names the field, the value and what is allowed.
     """
 
-    length_m: float = field(metadata=_POS)
-    width_m: float = field(metadata=_POS)
-    thickness_m: float = field(metadata=_POS)
-    density_kg_m3: float = field(metadata=_POS)
-    youngs_modulus_pa: float = field(metadata=_POS)
-    outer_mass_kg: float = field(metadata=_POS)
-    spring_n_m: float = field(metadata=_POS)
-    gap_m: float | None = field(default=None, metadata=_OPT_NONNEG)
-    damping_ratio: float = field(default=0.0, metadata=_NONNEG)
+    length_m: float = field(metadata=_LENGTH)
+    width_m: float = field(metadata=_LENGTH)
+    thickness_m: float = field(metadata=_LENGTH)
+    density_kg_m3: float = field(metadata=_DENSITY)
+    youngs_modulus_pa: float = field(metadata=_MODULUS)
+    outer_mass_kg: float = field(metadata=_MASS)
+    spring_n_m: float = field(metadata=_SPRING)
+    gap_m: float | None = field(default=None, metadata={**_GAP, **_OPT})
+    damping_ratio: float = field(default=0.0, metadata=_DAMPING)
     # The optional gaps stay None when omitted instead of being filled with gap_m, so that
     # dataclasses.replace(cell, gap_m=...) still moves both gaps.
-    gap1_m: float | None = field(default=None, metadata=_OPT_NONNEG)
-    gap2_m: float | None = field(default=None, metadata=_OPT_NONNEG)
-    base_amplitude_m: float | None = field(default=None, metadata=_OPT_POS)
-    base_acceleration_m_s2: float | None = field(default=None, metadata=_OPT_POS)
+    gap1_m: float | None = field(default=None, metadata={**_GAP, **_OPT})
+    gap2_m: float | None = field(default=None, metadata={**_GAP, **_OPT})
+    base_amplitude_m: float | None = field(default=None, metadata={**_AMPLITUDE, **_OPT})
+    base_acceleration_m_s2: float | None = field(default=None, metadata={**_ACCELERATION, **_OPT})
 
     def __post_init__(self) -> None:
         """Validate every field and normalise numbers to built-in ``float``."""
@@ -421,6 +436,4 @@ class PhysicalCell:
 
 # The cell's own quantities: always given, always > 0 (the gaps and the excitation have their
 # own rules: gap_m or both gap1_m and gap2_m, exactly one of the two excitations).
-CELL_FIELDS: tuple[str, ...] = tuple(
-    f.name for f in fields(PhysicalCell) if f.default is MISSING and dict(f.metadata) == _POS
-)
+CELL_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(PhysicalCell) if f.default is MISSING)

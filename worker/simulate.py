@@ -12,7 +12,7 @@ import importlib
 import math
 import sys
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -29,6 +29,8 @@ from worker.solvers.settings import (
     METHODS,
     OUTCOMES,
     SOLVER_VERSION,
+    PointCancelled,
+    PointLimits,
     PointResult,
     SolverSettings,
     int_in,
@@ -43,10 +45,13 @@ __all__ = [
     "OUTCOMES",
     "POINT_KEYS",
     "SOLVER_VERSION",
+    "PointCancelled",
+    "PointLimits",
     "PointResult",
     "SolverSettings",
     "failed_result",
     "kernels_cached",
+    "point_history",
     "simulate_chunk",
     "simulate_point",
     "warm_up",
@@ -65,6 +70,8 @@ def simulate_point(
     history_periods: int = 0,
     initial_state: np.ndarray | None = None,
     forcing: bool = True,
+    limits: PointLimits | None = None,
+    cancelled: Callable[[], bool] | None = None,
     **options: Any,
 ) -> PointResult:
     """Simulate one point to its proven end and measure it.
@@ -83,6 +90,12 @@ def simulate_point(
         ``[u; q]`` at τ = 0 (default: rest).
     forcing : bool
         Switch the base excitation off (energy checks).
+    limits : PointLimits, optional
+        Wall-time and step budget of the point (default ``PointLimits()``); a point over its
+        budget is ``failed`` with that reason.
+    cancelled : callable, optional
+        Polled between batches of periods; when it returns true the point raises
+        :class:`PointCancelled`.
     **options
         Method options: ``event_tol``, ``max_events_per_period`` (``event``).
 
@@ -125,26 +138,52 @@ def simulate_point(
         return RUNS[settings.method](sys_, settings, tail, forcing, DIVERGENCE_FACTOR * scale,
                                      **options)  # fmt: skip
 
-    return run_point(make_run, sys_, tail, settings, x0, history_periods)
+    return run_point(make_run, sys_, tail, settings, x0, history_periods, limits, cancelled)
 
 
 def simulate_chunk(
-    points: Iterable[Mapping[str, Any]], solver: Mapping[str, Any] | None = None
+    points: Iterable[Mapping[str, Any]],
+    solver: Mapping[str, Any] | None = None,
+    limits: Mapping[str, Any] | None = None,
+    cancelled: Callable[[], bool] | None = None,
 ) -> list[dict[str, Any]]:
     """Run many points (one dask task). A point that fails is reported, never raised.
 
     Each point is a mapping of ``CellParams`` fields; ``solver`` holds ``SolverSettings``
-    fields. Returns one ``PointResult.as_dict()`` per point, in order.
+    fields and ``limits`` ``PointLimits`` fields. Returns one ``PointResult.as_dict()`` per
+    point, in order. When ``cancelled()`` turns true (checked between points and inside each
+    point) the chunk stops and returns the records finished so far: fewer than the points.
     """
     settings = SolverSettings(**(solver or {}))
-    results = []
+    budget = PointLimits(**(limits or {}))
+    results: list[dict[str, Any]] = []
     for pt in points:
+        if cancelled is not None and cancelled():
+            break
         try:
             params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
-            results.append(simulate_point(params, settings).as_dict())
+            res = simulate_point(params, settings, limits=budget, cancelled=cancelled)
+            results.append(res.as_dict())
+        except PointCancelled:
+            break
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             results.append(failed_result(settings, str(exc)))
     return results
+
+
+def point_history(
+    point: Mapping[str, Any],
+    solver: Mapping[str, Any],
+    periods: int,
+    limits: Mapping[str, Any] | None = None,
+) -> PointResult:
+    """One point of a study with ``periods`` periods of its time histories (one dask task:
+    the service's ``/timeseries``). Raises ``ValueError`` for a point that cannot be run."""
+    params = CellParams(**{k: point[k] for k in POINT_KEYS if k in point})
+    return simulate_point(
+        params, SolverSettings(**solver), history_periods=periods,
+        limits=PointLimits(**(limits or {})),
+    )  # fmt: skip
 
 
 def failed_result(settings: SolverSettings, reason: str) -> dict[str, Any]:

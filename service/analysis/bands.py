@@ -21,8 +21,10 @@ returns plain Python data in which missing or non-finite numbers are ``None``.
 
 from __future__ import annotations
 
+import csv
+import io
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -36,10 +38,15 @@ from service.analysis.selection import (
 )
 from service.studies.dataset import jsonable
 
-__all__ = ["EDGE_KINDS", "Band", "band_edges", "bandgap_json", "bandgap_map"]
+__all__ = ["EDGE_KINDS", "Band", "band_edges", "bandgap_csv", "bandgap_json", "bandgap_map"]
 
 #: Edge kinds, in the order of their integer codes in :func:`bandgap_map`'s dataset.
 EDGE_KINDS: tuple[str, ...] = ("crossing", "grid_end", "missing")
+_EDGE_MEANINGS = (
+    "interpolated linearly between the grid points on either side of the threshold",
+    "the band reaches the end of the grid; the true edge lies beyond it",
+    "the neighbouring grid point is missing (failed); the edge is the last known point",
+)
 
 
 class Band(NamedTuple):
@@ -212,18 +219,42 @@ def bandgap_map(
     return out
 
 
-def bandgap_json(ds_map: xr.Dataset) -> dict[str, Any]:
-    """A :func:`bandgap_map` as JSON-ready data.
+def _axis_json(ds_map: xr.Dataset, name: str) -> dict[str, Any]:
+    c = ds_map[name]
+    return {
+        "name": name,
+        "units": str(c.attrs.get("units", "")),
+        "long_name": str(c.attrs.get("long_name", "")),
+        "values": jsonable(c.values),
+    }
+
+
+def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A :func:`bandgap_map` as JSON-ready data that describes itself.
+
+    Parameters
+    ----------
+    ds_map : xarray.Dataset
+        A :func:`bandgap_map`.
+    fixed : mapping, optional
+        Dimensions the caller left open and that were fixed at a default value
+        (:func:`service.analysis.selection.default_view`); marked ``"default": true`` in
+        ``slice``.
 
     Returns
     -------
     dict
-        ``x``, ``y`` (names; ``y`` None for a 1-d map), ``threshold_db``, ``dims``, ``coords``
-        (x and y values), ``units``, ``long_names``, ``scalars`` (the selected values),
-        ``transmittance_db`` (None for missing), ``attenuating`` and ``edges``: one
+        ``variable`` (name, units, long name of Γ), ``threshold`` (value, units, meaning),
+        ``axes`` (``x`` and ``y``: name, units, long name, values; ``y`` None for a 1-d map),
+        ``slice`` (every fixed coordinate: value, units, long name, whether chosen by default),
+        ``edge_kinds`` (what each edge kind means), and the data: ``dims``,
+        ``transmittance_db`` (None for missing), ``attenuating`` and ``edges``, one
         ``{"y": value, "bands": [[start, stop], ...], "kinds": [[start_kind, stop_kind], ...]}``
-        per y value (a single entry with ``"y": None`` for a 1-d map).
+        per y value (a single entry with ``"y": None`` for a 1-d map), band edges in the units
+        of x. Also, as before: ``x``, ``y``, ``threshold_db``, ``coords``, ``units``,
+        ``long_names`` and ``scalars``.
     """
+    fixed = dict(fixed or {})
     x = str(ds_map.attrs["x"])
     y = str(ds_map.attrs.get("y") or "") or None
     gamma = ds_map["transmittance_db"]
@@ -231,6 +262,16 @@ def bandgap_json(ds_map: xr.Dataset) -> dict[str, Any]:
     coords = {a: jsonable(ds_map[a].values) for a in axes}
     scalars = {
         str(k): jsonable(c.values)
+        for k, c in gamma.coords.items()
+        if c.ndim == 0 and k not in ("band",)
+    }
+    slice_ = {
+        str(k): {
+            "value": jsonable(c.values),
+            "units": str(c.attrs.get("units", "")),
+            "long_name": str(c.attrs.get("long_name", "")),
+            "default": str(k) in fixed,
+        }
         for k, c in gamma.coords.items()
         if c.ndim == 0 and k not in ("band",)
     }
@@ -250,10 +291,25 @@ def bandgap_json(ds_map: xr.Dataset) -> dict[str, Any]:
                 "kinds": [[EDGE_KINDS[s_edge[r, k]], EDGE_KINDS[e_edge[r, k]]] for k in range(n)],
             }
         )
+    thr = float(ds_map.attrs["threshold_db"])
     return {
+        "variable": {
+            "name": "transmittance_db",
+            "units": str(gamma.attrs.get("units", "dB")),
+            "long_name": str(gamma.attrs.get("long_name", "")),
+        },
+        "threshold": {
+            "value": thr,
+            "units": "dB",
+            "meaning": f"a point is attenuating (in a band) where transmittance_db < {thr:g} dB",
+        },
+        "axes": {"x": _axis_json(ds_map, x), "y": None if y is None else _axis_json(ds_map, y)},
+        "slice": slice_,
+        "edge_units": str(ds_map[x].attrs.get("units", "")),
+        "edge_kinds": dict(zip(EDGE_KINDS, _EDGE_MEANINGS, strict=True)),
         "x": x,
         "y": y,
-        "threshold_db": float(ds_map.attrs["threshold_db"]),
+        "threshold_db": thr,
         "dims": [str(d) for d in gamma.dims],
         "coords": coords,
         "units": {a: str(ds_map[a].attrs.get("units", "")) for a in axes},
@@ -263,3 +319,40 @@ def bandgap_json(ds_map: xr.Dataset) -> dict[str, Any]:
         "attenuating": jsonable(ds_map["attenuating"].values),
         "edges": edges,
     }
+
+
+def bandgap_csv(ds_map: xr.Dataset) -> str:
+    """The band edges of a :func:`bandgap_map` as CSV text, one row per band.
+
+    Columns: ``y``'s name (2-d maps), ``band`` (0, 1, … along x), ``start`` and ``stop`` (in
+    units of x), ``start_edge`` and ``stop_edge`` (:data:`EDGE_KINDS`), ``threshold_db``, then
+    one column per fixed coordinate of the slice. A y value without a band has one row with
+    ``band`` and the edges empty, so every y value appears.
+    """
+    doc = bandgap_json(ds_map)
+    y = doc["y"]
+    fixed = list(doc["scalars"])
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    head = ([y] if y else []) + ["band", "start", "stop", "start_edge", "stop_edge",
+                                 "threshold_db"] + fixed  # fmt: skip
+    w.writerow(head)
+    tail = [doc["threshold_db"], *(_cell(doc["scalars"][k]) for k in fixed)]
+    for row in doc["edges"]:
+        lead = [_cell(row["y"])] if y else []
+        if not row["bands"]:
+            w.writerow([*lead, "", "", "", "", "", *tail])
+        for k, ((a, b), (ka, kb)) in enumerate(zip(row["bands"], row["kinds"], strict=True)):
+            w.writerow([*lead, k, _cell(a), _cell(b), ka, kb, *tail])
+    return buf.getvalue()
+
+
+def _cell(v: Any) -> str:
+    """A CSV field: empty for missing, ``repr`` precision for floats."""
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else repr(v)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return str(v)

@@ -1,9 +1,11 @@
-"""PNG figures of results datasets (the only module that imports matplotlib).
+"""PNG and SVG figures of results datasets (the only module that imports matplotlib).
 
 Every function builds its own :class:`matplotlib.figure.Figure` with a
 :class:`~matplotlib.backends.backend_agg.FigureCanvasAgg` (no pyplot state), so figures can
-be drawn from several threads of a web server at once. Each returns the PNG bytes of a figure
-of a fixed pixel size (``figsize × dpi``; no tight bounding box).
+be drawn from several threads of a web server at once. Each returns the bytes of a figure of a
+fixed size (``figsize × dpi``; no tight bounding box): PNG, or SVG with ``fmt="svg"``. Axes
+that a request left open and that were fixed at a default (``fixed``, from
+:func:`service.analysis.selection.default_view`) are named in the title.
 
 Selections go through :mod:`service.analysis.selection`, so a bad selection raises
 :class:`~service.analysis.selection.AnalysisError` with the same message as everywhere else.
@@ -13,8 +15,8 @@ Symbols and units of the axes come from :mod:`service.studies.variables`.
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
 
 import matplotlib
 import numpy as np
@@ -33,10 +35,19 @@ from service.studies.variables import AXES, axis_symbol, default_x
 # does: figures are drawn with the object API).
 matplotlib.use("Agg")
 
-__all__ = ["DPI", "FIGSIZE", "bandgap_png", "effective_mass_png", "transmittance_png"]
+__all__ = [
+    "DPI",
+    "FIGSIZE",
+    "FORMATS",
+    "bandgap_png",
+    "effective_mass_png",
+    "transmittance_png",
+]
 
 FIGSIZE: tuple[float, float] = (8.0, 5.0)  # inches
 DPI = 120  # FIGSIZE × DPI = 960 × 600 pixels
+Format = Literal["png", "svg"]
+FORMATS: dict[str, str] = {"png": "image/png", "svg": "image/svg+xml"}  # format -> media type
 
 
 def _units(da: xr.DataArray) -> str:
@@ -88,10 +99,28 @@ def _figure() -> tuple[Figure, Any]:
     return fig, fig.add_subplot()
 
 
-def _png(fig: Figure) -> bytes:
+def _png(fig: Figure, fmt: Format = "png") -> bytes:
+    if fmt not in FORMATS:
+        raise AnalysisError(f"format={fmt!r} is not a figure format; formats are png, svg")
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    # A fixed hash salt and no date: the same figure gives the same SVG bytes (cacheable).
+    metadata = {"Date": None} if fmt == "svg" else None
+    with matplotlib.rc_context({"svg.hashsalt": "impactcell"}):
+        fig.savefig(buf, format=fmt, dpi=DPI, metadata=metadata)
     return buf.getvalue()
+
+
+def _fixed_text(fixed: Mapping[str, Any] | None) -> str:
+    """``fixed at their first value (select others): θ = 0.1`` for defaulted axes."""
+    if not fixed:
+        return ""
+    parts = ", ".join(f"{axis_symbol(k)} = {_value(v)}" for k, v in fixed.items())
+    names = ", ".join(fixed)
+    return f"by default at the first value (choose with {names}=…): {parts}"
+
+
+def _title(*lines: str) -> str:
+    return "\n".join(line for line in lines if line)
 
 
 def _default_x(ds: xr.Dataset, variable: str) -> str:
@@ -111,6 +140,9 @@ def transmittance_png(
     x: str | None = None,
     hue: str | None = None,
     nearest: bool = False,
+    *,
+    fixed: Mapping[str, Any] | None = None,
+    fmt: Format = "png",
 ) -> bytes:
     """Transmittance Γ (dB) against ``x``, one line per value of ``hue`` (paper Fig. 5(a)).
 
@@ -127,11 +159,15 @@ def transmittance_png(
         A dimension drawn as several lines (e.g. ``gap``).
     nearest : bool
         Take the closest coordinate values of ``sel``.
+    fixed : mapping, optional
+        Axes fixed by default (named in the title).
+    fmt : {"png", "svg"}
+        Image format.
 
     Returns
     -------
     bytes
-        A PNG image.
+        A PNG (or SVG) image.
     """
     x = x or _default_x(ds, "transmittance_db")
     da = slice_axes(ds, "transmittance_db", [hue, x], sel, nearest).sortby(x)
@@ -153,24 +189,28 @@ def transmittance_png(
         ax.plot([], [], " ", label=f"{missing} missing point{'s' if missing != 1 else ''}")
     ax.set_xlabel(_axis_label(x, da[x]))
     ax.set_ylabel("transmittance Γ (dB)")
-    ax.set_title(_subtitle(da, skip=(x,) if hue is None else (x, hue)), fontsize=9)
+    sub = _subtitle(da, skip=(x,) if hue is None else (x, hue))
+    ax.set_title(_title(sub, _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.legend(fontsize=8, loc="best", title=None if hue is None else axis_symbol(hue))
-    return _png(fig)
+    return _png(fig, fmt)
 
 
-def bandgap_png(map_ds: xr.Dataset) -> bytes:
+def bandgap_png(
+    map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None, fmt: Format = "png"
+) -> bytes:
     """A :func:`service.analysis.bands.bandgap_map` as an image.
 
     Two-dimensional maps: Γ as a pcolormesh with a diverging colormap centred on the
     threshold, the attenuating region hatched and outlined (the threshold contour), band
     edges marked (``|`` at interpolated edges, ``>``/``<`` where the edge is the grid end or a
-    missing point). One-dimensional maps: Γ against x with the bands shaded.
+    missing point). One-dimensional maps: Γ against x with the bands shaded. ``fixed`` axes
+    are named in the title; ``fmt`` is ``png`` or ``svg``.
 
     Returns
     -------
     bytes
-        A PNG image.
+        A PNG (or SVG) image.
     """
     x = str(map_ds.attrs["x"])
     y = str(map_ds.attrs.get("y") or "") or None
@@ -185,7 +225,7 @@ def bandgap_png(map_ds: xr.Dataset) -> bytes:
     e_edge = np.atleast_2d(map_ds["band_stop_edge"].values)
     title = f"attenuation bands (Γ < {thr:g} dB)"
     sub = _subtitle(gamma, skip=(x, y or "", "band"))
-    ax.set_title(f"{title}\n{sub}" if sub else title, fontsize=9)
+    ax.set_title(_title(title, sub, _fixed_text(fixed)), fontsize=9)
     ax.set_xlabel(_axis_label(x, map_ds[x]))
 
     if y is None:
@@ -204,7 +244,7 @@ def bandgap_png(map_ds: xr.Dataset) -> bytes:
         ax.set_ylabel("transmittance Γ (dB)")
         ax.grid(True, lw=0.4, alpha=0.5)
         ax.legend(fontsize=8, loc="best")
-        return _png(fig)
+        return _png(fig, fmt)
 
     yv = map_ds[y].values.astype(np.float64)
     g = np.ma.masked_invalid(gamma.transpose(y, x).values.astype(np.float64))
@@ -260,7 +300,7 @@ def bandgap_png(map_ds: xr.Dataset) -> bytes:
     ax.set_ylabel(_axis_label(y, map_ds[y]))
     if handles:
         fig.legend(handles=handles, fontsize=7, loc="outside lower center", ncols=len(handles))
-    return _png(fig)
+    return _png(fig, fmt)
 
 
 def effective_mass_png(
@@ -268,6 +308,9 @@ def effective_mass_png(
     sel: Selection | None = None,
     x: str | None = None,
     nearest: bool = False,
+    *,
+    fixed: Mapping[str, Any] | None = None,
+    fmt: Format = "png",
 ) -> bytes:
     """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): from first harmonics (Eq. 35)
     and, as a second estimator, from the slope of the velocity phase portrait.
@@ -286,11 +329,15 @@ def effective_mass_png(
         Horizontal axis; default ``gamma_r``, else ``frequency_hz``.
     nearest : bool
         Take the closest coordinate values of ``sel``.
+    fixed : mapping, optional
+        Axes fixed by default (named in the title).
+    fmt : {"png", "svg"}
+        Image format.
 
     Returns
     -------
     bytes
-        A PNG image.
+        A PNG (or SVG) image.
     """
     x = x or _default_x(ds, "theta_eff")
     harmonic = slice_axes(ds, "theta_eff", [x], sel, nearest).sortby(x)
@@ -331,7 +378,7 @@ def effective_mass_png(
         ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel(_axis_label(x, harmonic[x]))
     ax.set_ylabel("effective mass ratio θ_eff (–)")
-    ax.set_title(_subtitle(harmonic, skip=(x,)), fontsize=9)
+    ax.set_title(_title(_subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
     ax.legend(fontsize=8, loc="best")
-    return _png(fig)
+    return _png(fig, fmt)

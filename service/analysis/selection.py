@@ -16,22 +16,30 @@ always succeeds.
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import xarray as xr
 
 from service.studies.dataset import jsonable
+from service.studies.variables import MODEL_AXES, default_x
 
 __all__ = [
+    "FEW_VALUES",
     "AnalysisError",
     "Selection",
+    "View",
     "coordinate_index",
+    "default_view",
+    "default_y",
     "parse_number",
     "select",
     "slice_axes",
+    "slice_csv",
     "slice_json",
     "values_text",
 ]
@@ -40,6 +48,7 @@ _RTOL = 1e-9
 _MAX_LISTED = 8  # values listed in full in an error message; longer axes are abbreviated
 
 Selection = Mapping[str, str | float]
+_DTYPES = {"f": "float", "i": "int", "u": "int", "b": "bool", "U": "str", "O": "str", "S": "str"}
 
 
 class AnalysisError(ValueError):
@@ -244,6 +253,79 @@ def slice_axes(
     return out.isel({d: 0 for d in rest}).transpose(*keep)
 
 
+# --------------------------------------------------------------------------- defaults
+
+#: A second axis (hue of a line plot, y of a bandgap map) is preferably one with at most this
+#: many values: a legend of more lines is unreadable.
+FEW_VALUES = 12
+
+
+class View(NamedTuple):
+    """What a figure or a bandgap map shows: ``x``, the second axis ``y`` (a plot's hue; None
+    for none), the full selection ``sel`` of every other dimension, and ``fixed``: the
+    dimensions the caller left open that were fixed at their first value."""
+
+    x: str
+    y: str | None
+    sel: dict[str, Any]
+    fixed: dict[str, Any]
+
+
+def _varying(ds: xr.Dataset, variable: str) -> list[str]:
+    dims = ds[variable].dims if variable in ds.data_vars else tuple(ds.dims)
+    return [str(d) for d in dims if d != "stop" and ds.sizes[d] > 1]
+
+
+def default_y(
+    ds: xr.Dataset, x: str, sel: Selection | None = None, variable: str = "transmittance_db"
+) -> str | None:
+    """The default second axis: a varying dimension other than ``x`` and the selected ones,
+    the first in model order (gap, g1, g2, theta, ...) with at most :data:`FEW_VALUES` values,
+    else the first; None when nothing else varies. Plots (hue, map y) and ``/bandgap`` share it.
+    """
+    chosen = set(sel or {})
+    order = {a: i for i, a in enumerate(MODEL_AXES)}
+    cands = [d for d in _varying(ds, variable) if d != x and d not in chosen]
+    cands.sort(key=lambda d: order.get(d, len(order)))  # stable: others in dataset order
+    few = [d for d in cands if ds.sizes[d] <= FEW_VALUES]
+    return (few or cands or [None])[0]
+
+
+def default_view(
+    ds: xr.Dataset,
+    variable: str = "transmittance_db",
+    x: str | None = None,
+    y: str | None = None,
+    sel: Selection | None = None,
+    *,
+    auto_y: bool = True,
+) -> View:
+    """Fill in what a request left open, so a figure or map needs no parameters at all.
+
+    ``x`` defaults to the frequency axis (:func:`service.studies.variables.default_x`), ``y``
+    (when ``auto_y``) to :func:`default_y`; every other varying dimension of ``variable`` that
+    ``sel`` does not give is fixed at its first value and reported in ``View.fixed``.
+    """
+    _variable(ds, variable)
+    sel = dict(sel or {})
+    if x is None:
+        x = default_x(_varying(ds, variable)) or default_x(ds[variable].dims)
+    if x is None:
+        raise AnalysisError(
+            "x is required: neither gamma_r nor frequency_hz is a dimension; dimensions are "
+            f"{_names(list(ds[variable].dims))}"
+        )
+    if y is None and auto_y:
+        y = default_y(ds, x, sel, variable)
+    fixed: dict[str, Any] = {}
+    for d in _varying(ds, variable):
+        if d not in (x, y) and d not in sel:
+            v = ds[d].values[0]
+            fixed[d] = v.item() if hasattr(v, "item") else v
+            sel[d] = repr(float(fixed[d])) if ds[d].dtype.kind in "iuf" else str(fixed[d])
+    return View(x, y, sel, fixed)
+
+
 # --------------------------------------------------------------------------- JSON
 
 
@@ -287,6 +369,7 @@ def slice_json(da: xr.DataArray) -> dict[str, Any]:
             coord_dims[str(d)] = [str(d)]
     out = {
         "variable": None if da.name is None else str(da.name),
+        "dtype": _DTYPES.get(da.dtype.kind, "str"),
         "units": str(da.attrs.get("units", "")),
         "long_name": str(da.attrs.get("long_name", "")),
         "dims": [str(d) for d in da.dims],
@@ -299,3 +382,44 @@ def slice_json(da: xr.DataArray) -> dict[str, Any]:
         out["flag_values"] = jsonable(np.atleast_1d(da.attrs.get("flag_values", [])))
         out["flag_meanings"] = str(da.attrs["flag_meanings"]).split()
     return out
+
+
+def _csv_cells(a: np.ndarray) -> list[str]:
+    """Flat CSV fields of an array: empty for missing, ``repr`` precision for floats."""
+    flat = np.asarray(a).ravel()
+    if flat.dtype.kind == "f":
+        return ["" if not math.isfinite(v) else repr(v) for v in flat.tolist()]
+    if flat.dtype.kind == "b":
+        return ["true" if v else "false" for v in flat.tolist()]
+    return ["" if v is None else str(v) for v in flat.tolist()]
+
+
+def slice_csv(da: xr.DataArray) -> str:
+    """A selection as CSV text in long form: one row per value.
+
+    Columns: one per dimension (its coordinate value), then the variable (named as it is),
+    then one per 0-d coordinate (the selected and fixed values, constant). Missing values are
+    empty fields, booleans ``true``/``false``, and a CF flag variable (``outcome``) is written
+    as its meanings (``linear``, ``periodic``, …), not its codes.
+    """
+    name = "value" if da.name is None else str(da.name)
+    values = da.values
+    meanings = str(da.attrs.get("flag_meanings", "")).split()
+    if meanings:
+        flags = np.asarray(da.attrs.get("flag_values", np.arange(len(meanings)))).ravel()
+        table = dict(zip(flags.tolist(), meanings, strict=False))
+        values = np.vectorize(lambda v: table.get(int(v), str(v)), otypes=[object])(values)
+    dims = [str(d) for d in da.dims]
+    grids = np.meshgrid(
+        *[da[d].values if d in da.coords else np.arange(da.sizes[d]) for d in dims],
+        indexing="ij",
+    )
+    columns = [_csv_cells(g) for g in grids] + [_csv_cells(values)]
+    scalars = {str(k): c for k, c in da.coords.items() if c.ndim == 0}
+    const = [_csv_cells(c.values.reshape(1))[0] for c in scalars.values()]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([*dims, name, *scalars])
+    for row in zip(*columns, strict=True) if columns else ():
+        w.writerow([*row, *const])
+    return buf.getvalue()

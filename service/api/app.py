@@ -9,7 +9,9 @@ from typing import Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from service.api.catalogue import Catalogue
@@ -20,7 +22,13 @@ from service.api.routes import health, regressions, results, studies, timeseries
 from service.api.settings import Settings
 from service.studies.provenance import package_version
 
-__all__ = ["create_app"]
+__all__ = ["OPEN_ROUTES", "create_app"]
+
+#: Paths served without the token even when one is set: liveness, and the API's description
+#: (Swagger UI loads the schema without credentials; the token is entered in its Authorize
+#: dialog). Everything else answers 401 without ``Authorization: Bearer <token>``.
+OPEN_ROUTES = ("/health", "/docs", "/openapi.json", "/docs/assets")
+_ASSETS = "/docs/assets"  # Swagger UI's JS and CSS, from the swagger-ui-bundle package
 
 log = logging.getLogger("impactcell.app")
 
@@ -116,11 +124,14 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
         summary="Parameter studies of an impacting beam-in-mass metamaterial cell",
         description=(
             "Submit study definitions (grids over gaps, θ, σ, γ_s, γ_r, …), follow their "
-            "progress, fetch NetCDF datasets, JSON slices, bandgap maps and figures. When "
-            "`IMPACTCELL_API_TOKEN` is set, every route except `/health` needs "
-            "`Authorization: Bearer <token>`."
+            "progress, fetch NetCDF datasets, JSON/CSV slices, bandgap maps and figures. When "
+            "`IMPACTCELL_API_TOKEN` is set, every route except `/health`, `/docs` (with its "
+            "assets) and `/openapi.json` needs `Authorization: Bearer <token>` (the Authorize "
+            "button here)."
         ),
         lifespan=lifespan,
+        docs_url=None,  # served below from local assets: no CDN, works offline
+        redoc_url=None,
     )
     app.state.settings = settings
     auth = [Depends(require_token)]
@@ -129,6 +140,7 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
     app.include_router(results.router, dependencies=auth)
     app.include_router(timeseries.router, dependencies=auth)
     app.include_router(regressions.router, dependencies=auth)
+    _add_docs(app)
     app.add_middleware(BodyLimit, limit=lambda: settings.max_body_bytes)
 
     @app.exception_handler(StarletteHTTPException)
@@ -159,3 +171,22 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
         )
 
     return app
+
+
+def _add_docs(app: FastAPI) -> None:
+    """Swagger UI at ``/docs`` with its JS and CSS served by the service itself."""
+    from swagger_ui_bundle import swagger_ui_path
+
+    app.mount(_ASSETS, StaticFiles(directory=swagger_ui_path), name="swagger-ui-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    async def _docs(request: Request) -> HTMLResponse:
+        root = request.scope.get("root_path", "").rstrip("/")
+        return get_swagger_ui_html(
+            openapi_url=f"{root}{app.openapi_url}",
+            title=f"{app.title} API",
+            swagger_js_url=f"{root}{_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{root}{_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{root}{_ASSETS}/favicon-32x32.png",
+            swagger_ui_parameters={"persistAuthorization": True},
+        )

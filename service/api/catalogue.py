@@ -275,6 +275,12 @@ class Catalogue:
         with self._tx() as s:
             return list(s.scalars(q).all())
 
+    def queue_positions(self) -> dict[str, int]:
+        """1-based position of every queued study in the queue (submission order)."""
+        q = select(StudyRow.id).where(StudyRow.status == "queued").order_by(StudyRow.seq)
+        with self._tx() as s:
+            return {sid: i + 1 for i, sid in enumerate(s.scalars(q).all())}
+
     def update_study(self, study_id: str, **fields: Any) -> None:
         """Set fields of a study (``failures`` may be given as a list)."""
         if "failures" in fields and not isinstance(fields["failures"], str):
@@ -415,10 +421,72 @@ class Catalogue:
         except IntegrityError:  # a concurrent insert of the same lease won
             return False
 
+    def lease_free(self, name: str) -> bool:
+        """Whether nobody holds the named lease (never taken, given back, or expired)."""
+        with self._tx() as s:
+            row = s.get(LeaseRow, name)
+            if row is None:
+                return True
+            held_until = _aware(row.expires_at)
+            return held_until is None or held_until <= utcnow()
+
     def release_lease(self, name: str, holder: str) -> None:
         """Give the lease back if we hold it."""
         with self._tx() as s:
             s.execute(delete(LeaseRow).where(LeaseRow.name == name, LeaseRow.holder == holder))
+
+    # ------------------------------------------------------------------ regression runs' state
+
+    def unfinished_regressions(self) -> list[dict[str, Any]]:
+        """Regression runs without an outcome yet (``finished_at`` unset), oldest first."""
+        q = select(RegressionRow).where(RegressionRow.finished_at.is_(None))
+        with self._tx() as s:
+            rows = s.scalars(q.order_by(RegressionRow.id)).all()
+            return [_regression_dict(r, full=False) for r in rows]
+
+    def lease(self, name: str) -> dict[str, Any] | None:
+        """The named lease's ``holder`` and ``expires_at`` (aware UTC datetime), or None."""
+        with self._tx() as s:
+            row = s.get(LeaseRow, name)
+            if row is None:
+                return None
+            return {"holder": row.holder, "expires_at": _aware(row.expires_at)}
+
+    def interrupt_regression(self, reg_id: int, *, summary: str, error: str, markdown: str) -> bool:
+        """End a run that has no outcome as not ok (``ok`` false, ``finished_at`` now).
+
+        Only while it is still unfinished, so a run that ends meanwhile keeps its own outcome;
+        returns whether this call ended it.
+        """
+        with self._tx() as s:
+            res = s.execute(
+                update(RegressionRow)
+                .where(RegressionRow.id == reg_id, RegressionRow.finished_at.is_(None))
+                .values(finished_at=utcnow(), ok=False, summary=summary, error=error,
+                        report_md=markdown)
+            )  # fmt: skip
+            return bool(res.rowcount)
+
+    def add_finished_regression(
+        self,
+        trigger: str,
+        *,
+        started_at: dt.datetime,
+        ok: bool,
+        summary: str,
+        report: dict[str, Any],
+        markdown: str = "",
+    ) -> int:
+        """Store a regression run that ran elsewhere and has ended (a client's); returns its id."""
+        with self._tx() as s:
+            row = RegressionRow(
+                started_at=started_at, finished_at=utcnow(), trigger=trigger, ok=ok,
+                summary=summary, report_json=json.dumps(report, allow_nan=False, default=str),
+                report_md=markdown,
+            )  # fmt: skip
+            s.add(row)
+            s.flush()
+            return int(row.id)
 
 
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:

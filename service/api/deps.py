@@ -6,6 +6,7 @@ import hmac
 from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Path, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.api.catalogue import Catalogue
 from service.api.jobs import JobManager
@@ -17,6 +18,7 @@ __all__ = [
     "JobsDep",
     "SettingsDep",
     "StudyId",
+    "bearer_scheme",
     "require_token",
     "study_or_404",
 ]
@@ -40,8 +42,23 @@ JobsDep = Annotated[JobManager, Depends(_jobs)]
 StudyId = Annotated[str, Path(description="study id (hex content hash)", max_length=64)]
 
 
-def require_token(request: Request) -> None:
+# Declares the bearer scheme in the OpenAPI (components.securitySchemes and each protected
+# operation's security), so /docs shows an Authorize button. auto_error=False: the check and
+# its 401 body stay ours (and with no token configured the routes are open).
+bearer_scheme = HTTPBearer(
+    auto_error=False,
+    scheme_name="bearer",
+    description="`IMPACTCELL_API_TOKEN` of the service, when it has one",
+)
+
+
+def require_token(
+    request: Request,
+    _credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)] = None,
+) -> None:
     """Bearer-token check when ``IMPACTCELL_API_TOKEN`` is set (constant-time comparison)."""
+    # The raw header is compared, not ``_credentials``: HTTPBearer drops headers it cannot
+    # parse, and every malformed header must get the same 401 as a wrong token.
     token = request.app.state.settings.api_token
     if not token:
         return

@@ -1,25 +1,39 @@
-"""The service's study queue: one runner thread feeding the dask cluster, cancel and resume.
+"""The service's study queue: one runner thread sharing the dask cluster among studies.
 
-Studies run one after another in submission order (each one already spreads over every dask
-worker). The catalogue is the source of truth for status, so a restarted service picks up where
-the last one stopped: studies left ``queued`` or ``running`` are queued again and resume from
-their finished chunks.
+Up to ``Settings.max_running_studies`` studies run at once; their chunks go to the cluster
+round-robin through one :class:`~service.studies.runner.ChunkPool`, so a small study is never
+held behind a large one. The rest wait in submission order (their ``queue_position``).
+
+The catalogue is the source of truth for status. A running study belongs to one service
+process: it holds the study's lease (``study:<id>``) in the catalogue and renews it every
+``lease_ttl_s / 3`` seconds. Another process on the same catalogue never runs a study whose
+lease is alive; it takes a study over only when its lease has expired (its process died).
+Studies left ``queued`` or ``running`` by a stopped service are queued again on the next start
+and resume from their finished chunks. Every process also picks up queued studies submitted
+through the others, so several service processes share one queue.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import queue
+import shutil
+import socket
 import threading
 import time
 import traceback
+import uuid
+from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from service.api.catalogue import ACTIVE, RESUMABLE, Catalogue, utcnow
 from service.api.settings import Settings
+from service.studies.chunks import StudyStore
 from service.studies.dataset import json_text
-from service.studies.runner import RunSummary, make_client, run_study
+from service.studies.runner import ChunkPool, StudyRun, make_client, warm_up
 from service.studies.schema import Study, study_from_canonical
 
 __all__ = ["JobManager", "StateError"]
@@ -28,10 +42,31 @@ log = logging.getLogger("impactcell.jobs")
 
 _MAX_FAILURES_KEPT = 20  # sample of failed points (coordinates + reason) kept in the catalogue
 _PROGRESS_EVERY_S = 0.5
+_STEP_S = 0.25  # the runner thread's longest wait: how fast it sees cancels and new studies
 
 
 class StateError(ValueError):
     """An action that the study's current state does not allow (HTTP 409)."""
+
+
+def lease_name(study_id: str) -> str:
+    """The catalogue lease that makes one process the runner of a study."""
+    return f"study:{study_id}"
+
+
+@dataclass
+class _Active:
+    """A study this process is running."""
+
+    study: Study
+    run: StudyRun
+    prior_wall_s: float  # running time of earlier runs (a resumed or taken-over study)
+    started: float = field(default_factory=time.monotonic)
+    failures: list[dict[str, Any]] = field(default_factory=list)
+    last_progress: float = 0.0
+
+    def wall_s(self) -> float:
+        return self.prior_wall_s + time.monotonic() - self.started
 
 
 class JobManager:
@@ -40,22 +75,27 @@ class JobManager:
     def __init__(self, settings: Settings, catalogue: Catalogue) -> None:
         self.settings = settings
         self.catalogue = catalogue
+        self.instance = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
         self._queue: queue.Queue[str | None] = queue.Queue()
-        self._cancel: dict[str, threading.Event] = {}
+        self._waiting: deque[str] = deque()  # runner thread only
+        self._active: dict[str, _Active] = {}  # runner thread only
+        self._drop: dict[str, threading.Event] = {}  # cancel/delete requests → runner's ack
         self._lock = threading.Lock()
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
         self._client: Any = None
         self._cluster: Any = None
-        self.current: str | None = None
+        self._pool: ChunkPool | None = None
+        self._warm: set[str] = set()
+        self._nworkers = 1
+        self._dask_lock = threading.Lock()  # the runner thread and requests both may start it
 
     # ------------------------------------------------------------------ lifecycle
 
     def start(self) -> None:
-        """Re-queue studies a previous process left unfinished, then start the runner thread."""
+        """Queue studies left unfinished (not those another live process runs), then start."""
         for sid in self.catalogue.ids_with_status(ACTIVE):
-            self.catalogue.update_study(sid, status="queued")
-            self._enqueue(sid)
+            self._queue.put(sid)
         self._thread = threading.Thread(target=self._loop, name="impactcell-runner", daemon=True)
         self._thread.start()
 
@@ -66,11 +106,8 @@ class JobManager:
         return alive and not self._stopping.is_set()
 
     def stop(self, timeout: float = 60.0) -> None:
-        """Stop after the chunks in flight; an interrupted study stays queued for the next start."""
+        """Stop: running studies go back to ``queued`` (finished chunks kept) for the next start."""
         self._stopping.set()
-        with self._lock:
-            for ev in self._cancel.values():
-                ev.set()
         self._queue.put(None)
         if self._thread is not None:
             self._thread.join(timeout)
@@ -83,26 +120,28 @@ class JobManager:
                     obj.close()
                 except Exception:  # noqa: BLE001 - shutting down anyway
                     log.exception("closing dask")
-        self._client = self._cluster = None
+        self._client = self._cluster = self._pool = None
 
     # ------------------------------------------------------------------ actions
 
-    def submit(self, study: Study) -> tuple[dict[str, Any], bool]:
-        """Queue a study unless the catalogue has it already; returns (record, created)."""
+    def submit(self, study: Study, *, resume: bool = False) -> tuple[dict[str, Any], bool]:
+        """Queue a study unless the catalogue has it already; returns (record, created).
+
+        With ``resume``, an existing cancelled or failed study is queued again (it continues
+        from its finished chunks)."""
         rec, created = self.catalogue.add_study(
             study.id, study.name, study.canonical_json(), study.size
         )
         if created:
-            self._enqueue(study.id)
+            self._queue.put(study.id)
+        elif resume and rec["status"] in RESUMABLE:
+            rec = self.resume(study.id)
         return rec, created
 
-    def cancel(self, study_id: str) -> dict[str, Any]:
-        """Cancel a queued or running study; finished chunks are kept."""
-        with self._lock:
-            ok = self.catalogue.set_status_if(study_id, ACTIVE, "cancelled", finished_at=utcnow())
-            ev = self._cancel.get(study_id)
-            if ok and ev is not None:
-                ev.set()
+    def cancel(self, study_id: str, wait: float = 10.0) -> dict[str, Any]:
+        """Cancel a queued or running study: its running tasks stop within seconds; finished
+        chunks are kept."""
+        ok = self.catalogue.set_status_if(study_id, ACTIVE, "cancelled", finished_at=utcnow())
         rec = self.catalogue.get_study(study_id)
         if rec is None:
             raise KeyError(study_id)
@@ -111,6 +150,21 @@ class JobManager:
                 f"study {study_id} is {rec['status']}; only queued or running "
                 "studies can be cancelled"
             )
+        self._request_drop(study_id, wait)
+        return rec
+
+    def delete(self, study_id: str, wait: float = 10.0) -> dict[str, Any]:
+        """Remove a study: stop it if it runs, then delete its files and its record."""
+        rec = self.catalogue.get_study(study_id)
+        if rec is None:
+            raise KeyError(study_id)
+        if rec["status"] in ACTIVE:
+            self.catalogue.set_status_if(study_id, ACTIVE, "cancelled", finished_at=utcnow())
+            self._request_drop(study_id, wait)
+        study = study_from_canonical(rec["definition"], source=f"study {study_id}")
+        files = [Path(f["path"]) for f in self.catalogue.result_files(study_id)]
+        self.catalogue.delete_study(study_id)
+        _remove_files(StudyStore(self.settings.data_dir, study), files)
         return rec
 
     def resume(self, study_id: str) -> dict[str, Any]:
@@ -126,109 +180,253 @@ class JobManager:
                 f"study {study_id} is {rec['status']}; only cancelled or failed "
                 "studies can be resumed"
             )
-        if ok:
-            self._enqueue(study_id)
+        self._queue.put(study_id)
         return rec
 
-    def _enqueue(self, study_id: str) -> None:
+    def _request_drop(self, study_id: str, wait: float) -> None:
+        """Ask the runner thread to drop a study and wait (bounded) until it has."""
+        ev = threading.Event()
         with self._lock:
-            self._cancel[study_id] = threading.Event()
-        self._queue.put(study_id)
+            self._drop[study_id] = ev
+        if self.running:
+            self._queue.put("")  # wake the runner thread
+            ev.wait(wait)
 
     # ------------------------------------------------------------------ the runner thread
 
     def _loop(self) -> None:
+        next_beat = 0.0
         while not self._stopping.is_set():
-            sid = self._queue.get()
-            if sid is None or self._stopping.is_set():
-                break
             try:
-                self._run_one(sid)
-            except Exception:  # noqa: BLE001 - the thread must survive any one study
-                log.exception("study %s", sid)
-            finally:
-                self.current = None
+                self._take_new(block=not self._active)
+                self._handle_drops()
+                self._start_waiting()
+                if self._pool is not None and self._active:
+                    for sid in self._pool.step(_STEP_S):
+                        self._finish(sid)
+                now = time.monotonic()
+                if now >= next_beat:
+                    next_beat = now + self.settings.lease_ttl_s / 3
+                    self._heartbeat()
+            except Exception:  # noqa: BLE001 - the thread must survive anything
+                log.exception("runner loop")
+                time.sleep(_STEP_S)
+        self._shutdown()
 
-    def _dask_client(self, method: str) -> Any:
+    def _take_new(self, block: bool) -> None:
+        try:
+            item = self._queue.get(timeout=_STEP_S) if block else self._queue.get_nowait()
+        except queue.Empty:
+            return
+        while True:
+            if item is None:
+                self._stopping.set()
+                return
+            if item and item not in self._active and item not in self._waiting:
+                self._waiting.append(item)
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+
+    def _handle_drops(self) -> None:
+        with self._lock:
+            drops, self._drop = self._drop, {}
+        for sid, ev in drops.items():
+            if sid in self._waiting:
+                self._waiting.remove(sid)
+            self._drop_active(sid)
+            ev.set()
+
+    def _drop_active(self, sid: str) -> None:
+        """Stop running a study here (its tasks told to stop) and give its lease back."""
+        if sid in self._active:
+            if self._pool is not None:
+                self._pool.remove(sid)
+            act = self._active.pop(sid)
+            # the running time so far counts (a later resume continues from it)
+            self.catalogue.update_study(sid, wall_s=act.wall_s(), failures=_json(act.failures))
+            self.catalogue.release_lease(lease_name(sid), self.instance)
+
+    def _start_waiting(self) -> None:
+        while self._waiting and len(self._active) < self.settings.max_running_studies:
+            sid = self._waiting.popleft()
+            try:
+                self._start(sid)
+            except Exception as exc:  # noqa: BLE001 - recorded, the service carries on
+                self._fail(sid, exc)
+
+    def _start(self, sid: str) -> None:
+        ttl = self.settings.lease_ttl_s
+        if not self.catalogue.acquire_lease(lease_name(sid), self.instance, ttl):
+            return  # a live process runs it
+        # Holding the lease, this process may start a queued study or take over a running one
+        # whose process died.
+        if not self.catalogue.set_status_if(
+            sid, ACTIVE, "running", started_at=utcnow(), error=None
+        ):
+            self.catalogue.release_lease(lease_name(sid), self.instance)
+            return  # cancelled, deleted or finished meanwhile
+        rec = self.catalogue.get_study(sid)
+        assert rec is not None
+        study = study_from_canonical(rec["definition"], source=f"study {sid}")
+        failures: list[dict[str, Any]] = list(rec["failures"])
+        run = StudyRun(
+            study, self.settings.data_dir, workers=self._nworkers,
+            progress=lambda done, total: self._progress(sid, done, total),
+            on_chunk=lambda start, stop, records: _keep_failures(
+                study, failures, start, stop, records),
+        )  # fmt: skip
+        act = _Active(study, run, float(rec["wall_s"] or 0.0), failures=failures)
+        self._active[sid] = act
+        if act.run.reused or not act.run.pieces:
+            self._finish(sid)
+            return
+        pool = self._ensure_pool(study.solver.method)
+        act.run.plan(self._nworkers)
+        pool.add(sid, act.run)
+
+    def compute(self, fn: Any, *args: Any, method: str, timeout: float) -> Any:
+        """Run ``fn(*args)`` on the service's dask cluster and wait up to ``timeout`` s for it
+        (recomputations for requests: never in the API process, never holding its GIL).
+
+        Raises
+        ------
+        TimeoutError
+            The result did not come back in time (the task is released).
+        """
+        pool = self._ensure_pool(method)
+        fut = pool.client.submit(fn, *args, pure=False, priority=10)  # ahead of study chunks
+        try:
+            return fut.result(timeout=timeout)
+        finally:
+            fut.release()
+
+    def _ensure_pool(self, method: str) -> ChunkPool:
+        with self._dask_lock:
+            return self._ensure_pool_locked(method)
+
+    def _ensure_pool_locked(self, method: str) -> ChunkPool:
         if self._client is None:
             # An embedded cluster starts after ``method``'s kernels are in numba's cache here.
             self._client, self._cluster = make_client(
                 self.settings.scheduler, self.settings.workers, method=method
             )
-        return self._client
+            info = self._client.scheduler_info()
+            self._nworkers = max(1, sum(w.get("nthreads", 1) for w in info["workers"].values()))
+            self._pool = ChunkPool(
+                self._client, max(8, 4 * self._nworkers), self.settings.point_limits()
+            )
+        if method not in self._warm:
+            warm_up(self._client, method)
+            self._warm.add(method)
+        assert self._pool is not None
+        return self._pool
 
-    def _run_one(self, sid: str) -> None:
-        with self._lock:
-            ev = self._cancel.setdefault(sid, threading.Event())
-        if not self.catalogue.set_status_if(
-            sid, ("queued",), "running", started_at=utcnow(), error=None
-        ):
-            return  # cancelled (or already done) while it waited
-        self.current = sid
-        rec = self.catalogue.get_study(sid)
-        assert rec is not None
-        failures: list[dict[str, Any]] = list(rec["failures"])
-        try:
-            study = study_from_canonical(rec["definition"], source=f"study {sid}")
-            summary = self._execute(sid, study, ev, failures)
-        except Exception as exc:  # noqa: BLE001 - recorded, the service carries on
-            log.error("study %s failed: %s\n%s", sid, exc, traceback.format_exc())
-            self.catalogue.set_status_if(
-                sid, ("running",), "failed", finished_at=utcnow(),
-                error=f"{type(exc).__name__}: {exc}",
-            )  # fmt: skip
+    def _progress(self, sid: str, done: int, total: int) -> None:
+        act = self._active.get(sid)
+        now = time.monotonic()
+        if act is None or (now - act.last_progress < _PROGRESS_EVERY_S and done < total):
             return
-        if summary.cancelled:
-            if self._stopping.is_set() and not _user_cancelled(self.catalogue, sid):
-                # Service shutting down: leave it queued so the next start resumes it.
-                self.catalogue.set_status_if(sid, ("running",), "queued")
-            return
-        size = Path(summary.path).stat().st_size
-        self.catalogue.add_result_file(sid, str(summary.path), size)
-        self.catalogue.set_status_if(
-            sid, ("running",), "finished", finished_at=utcnow(), wall_s=summary.wall_s,
-            points_done=summary.points, points_failed=summary.failed,
-            points_irregular=summary.irregular, points_unsettled=summary.unsettled,
-            failures=_json(failures),
-        )  # fmt: skip
-
-    def _execute(
-        self, sid: str, study: Study, ev: threading.Event, failures: list[dict[str, Any]]
-    ) -> RunSummary:
-        last = [0.0]
-
-        def on_chunk(start: int, stop: int, records: list[dict[str, Any]]) -> None:
-            bad = [i for i, r in enumerate(records) if r.get("failed")]
-            if bad and len(failures) < _MAX_FAILURES_KEPT:
-                coords = study.coords_at(start, stop)
-                for i in bad[: _MAX_FAILURES_KEPT - len(failures)]:
-                    failures.append({
-                        "index": start + i,
-                        "coords": {k: float(v[i]) for k, v in coords.items()},
-                        "reason": str(records[i].get("reason", "")),
-                    })  # fmt: skip
-
-        def progress(done: int, total: int) -> None:
-            now = time.monotonic()
-            if now - last[0] >= _PROGRESS_EVERY_S or done >= total:
-                last[0] = now
-                self.catalogue.update_study(sid, points_done=done, failures=_json(failures))
-
-        client = None if study.size == 0 else self._dask_client(study.solver.method)
-        return run_study(
-            study,
-            self.settings.data_dir,
-            client=client,
-            progress=progress,
-            on_chunk=on_chunk,
-            cancel=ev.is_set,
+        act.last_progress = now
+        self.catalogue.update_study(
+            sid, points_done=done, wall_s=act.wall_s(), failures=_json(act.failures)
         )
+
+    def _finish(self, sid: str) -> None:
+        act = self._active.pop(sid)
+        if self._pool is not None:
+            self._pool.remove(sid)
+        try:
+            summary = act.run.collate(self._nworkers)
+            size = Path(summary.path).stat().st_size
+            self.catalogue.add_result_file(sid, str(summary.path), size)
+            self.catalogue.set_status_if(
+                sid, ("running",), "finished", finished_at=utcnow(), wall_s=act.wall_s(),
+                points_done=summary.points, points_failed=summary.failed,
+                points_irregular=summary.irregular, points_unsettled=summary.unsettled,
+                failures=_json(act.failures),
+            )  # fmt: skip
+        except Exception as exc:  # noqa: BLE001 - recorded, the service carries on
+            self._fail(sid, exc)
+        finally:
+            self.catalogue.release_lease(lease_name(sid), self.instance)
+
+    def _fail(self, sid: str, exc: BaseException) -> None:
+        log.error("study %s failed: %s\n%s", sid, exc, traceback.format_exc())
+        act = self._active.pop(sid, None)
+        if act is not None and self._pool is not None:
+            self._pool.remove(sid)
+        self.catalogue.set_status_if(
+            sid, ACTIVE, "failed", finished_at=utcnow(), error=f"{type(exc).__name__}: {exc}",
+        )  # fmt: skip
+        self.catalogue.release_lease(lease_name(sid), self.instance)
+
+    def _heartbeat(self) -> None:
+        """Renew our leases; drop studies cancelled or deleted elsewhere; adopt orphans."""
+        ttl = self.settings.lease_ttl_s
+        for sid in list(self._active):
+            rec = self.catalogue.get_study(sid)
+            if rec is None:  # deleted through another service process
+                study = self._active[sid].study
+                self._forget(sid)
+                self.catalogue.release_lease(lease_name(sid), self.instance)
+                _remove_files(StudyStore(self.settings.data_dir, study), [])
+                continue
+            if rec["status"] != "running":  # cancelled through another service process
+                self._drop_active(sid)
+                continue
+            if not self.catalogue.acquire_lease(lease_name(sid), self.instance, ttl):
+                # Our lease lapsed and another process took the study over: it runs it now.
+                log.warning("study %s: lease lost to another process; stopping here", sid)
+                self._forget(sid)
+        # Studies queued through another process, and running ones whose process died.
+        known = set(self._active) | set(self._waiting)
+        for sid in self.catalogue.ids_with_status(ACTIVE):
+            if sid not in known and self.catalogue.lease_free(lease_name(sid)):
+                self._waiting.append(sid)
+
+    def _forget(self, sid: str) -> None:
+        """Drop a study's run here without touching its record (it is not ours any more)."""
+        if self._pool is not None:
+            self._pool.remove(sid)
+        self._active.pop(sid, None)
+
+    def _shutdown(self) -> None:
+        """Running studies go back to the queue (finished chunks kept) for the next start."""
+        for sid in list(self._active):
+            act = self._active[sid]
+            if self._pool is not None:
+                self._pool.remove(sid)
+            self.catalogue.set_status_if(sid, ("running",), "queued", wall_s=act.wall_s(),
+                                         failures=_json(act.failures))  # fmt: skip
+            self.catalogue.release_lease(lease_name(sid), self.instance)
+        self._active.clear()
+
+
+def _keep_failures(
+    study: Study, failures: list[dict[str, Any]], start: int, stop: int,
+    records: list[dict[str, Any]],
+) -> None:  # fmt: skip
+    """Keep a sample of failed points (coordinates and reason) for the study record."""
+    bad = [i for i, r in enumerate(records) if r.get("failed")]
+    room = _MAX_FAILURES_KEPT - len(failures)
+    if bad and room > 0:
+        coords = study.coords_at(start, stop)
+        for i in bad[:room]:
+            failures.append({
+                "index": start + i,
+                "coords": {k: float(v[i]) for k, v in coords.items()},
+                "reason": str(records[i].get("reason", "")),
+            })  # fmt: skip
+
+
+def _remove_files(store: StudyStore, files: list[Path]) -> None:
+    """Delete a study's folder in the store and any results file recorded elsewhere."""
+    shutil.rmtree(store.folder, ignore_errors=True)
+    for f in files:
+        f.unlink(missing_ok=True)
 
 
 def _json(items: list[dict[str, Any]]) -> str:
     return json_text(items)
-
-
-def _user_cancelled(catalogue: Catalogue, sid: str) -> bool:
-    rec = catalogue.get_study(sid)
-    return rec is not None and rec["status"] == "cancelled"

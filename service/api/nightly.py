@@ -12,6 +12,10 @@ reported as such (the run is not ok), never skipped.
 
 The suite is the shipped one (``studies/nightly`` with ``studies/baselines``) or
 ``IMPACTCELL_NIGHTLY_DIR`` with the ``baselines`` folder beside it.
+
+A runner made at service start first ends the runs that an earlier process left without an
+outcome (it died mid-run) as ``interrupted`` (:func:`service.api.schedule.recover_interrupted`),
+looking again later for runs whose heartbeat lease had not expired yet.
 """
 
 from __future__ import annotations
@@ -26,11 +30,11 @@ from typing import Any
 
 from service.api.catalogue import Catalogue
 from service.api.jobs import JobManager, StateError
-from service.api.schedule import record_run
+from service.api.schedule import record_run, recover_interrupted
 from service.api.settings import Settings
 from service.regression.compare import StudyComparison
 from service.regression.run import (
-    check_baseline_folder,
+    check_baselines,
     evaluate,
     make_report,
     new_run_dir,
@@ -66,6 +70,26 @@ class NightlyRunner:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._recheck: threading.Timer | None = None
+        self.recover_interrupted()
+
+    def recover_interrupted(self) -> list[int]:
+        """End runs left without an outcome by a dead process; returns their ids.
+
+        Runs whose heartbeat lease is still alive are looked at again when it expires (a
+        process that has just died keeps its lease that long).
+        """
+        try:
+            ended, again = recover_interrupted(self.catalogue)
+        except Exception:  # noqa: BLE001 - never keep the service from starting over this
+            log.exception("could not check for interrupted nightly runs")
+            return []
+        if again is not None and not self._stop.is_set():
+            wait = (again - dt.datetime.now(dt.UTC)).total_seconds() + 1.0
+            self._recheck = threading.Timer(max(wait, 1.0), self.recover_interrupted)
+            self._recheck.daemon = True
+            self._recheck.start()
+        return ended
 
     @property
     def busy(self) -> bool:
@@ -80,7 +104,8 @@ class NightlyRunner:
         Raises
         ------
         SuiteError
-            The suite or its baseline folder is bad (nothing was submitted).
+            The suite, its baseline folder or a baseline is bad or missing (nothing was
+            submitted).
         """
         with self._lock:
             return self._run()
@@ -116,6 +141,8 @@ class NightlyRunner:
     def stop(self, timeout: float = 30.0) -> None:
         """Stop waiting: a run in progress cancels its unfinished studies and reports that."""
         self._stop.set()
+        if self._recheck is not None:
+            self._recheck.cancel()
         if self._thread is not None:
             self._thread.join(timeout)
 
@@ -126,7 +153,7 @@ class NightlyRunner:
         started = dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
         suite_dir, base_dir = suite_folders(self.settings.nightly_dir)
         entries = load_suite(suite_dir, max_points=self.settings.max_points)
-        check_baseline_folder(base_dir, update=False)
+        check_baselines(entries, base_dir, update=False)  # before any study is queued
         run_dir = new_run_dir(self.settings.data_dir)
         tag = f"nightly-{run_dir.name}"
         log.info("nightly run %s: %d studies through the job queue", tag, len(entries))

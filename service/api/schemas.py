@@ -49,7 +49,9 @@ class StudyOut(BaseModel):
     id: str
     name: str
     status: Status
-    definition: dict[str, Any]
+    definition: dict[str, Any] | None = Field(
+        description="the canonical definition (null in lists unless full=true)"
+    )
     points_total: int
     points_done: int
     points_failed: int
@@ -61,9 +63,21 @@ class StudyOut(BaseModel):
     submitted_at: str
     started_at: str | None
     finished_at: str | None
-    wall_s: float | None
+    wall_s: float | None = Field(
+        description="running time in seconds, summed over every run of the study"
+    )
     error: str | None
     failures: list[FailedPoint] = Field(description="a sample of failed points (at most 20)")
+    queue_position: int | None = Field(
+        None, description="1-based place in the queue (queued studies only)"
+    )
+    rate_points_per_s: float | None = Field(
+        None, description="points per second over the study's running time (running only)"
+    )
+    eta_s: float | None = Field(
+        None, description="seconds left at that rate (running studies only)"
+    )
+    hint: str | None = Field(None, description="what to do next (cancelled or failed studies)")
     links: dict[str, str]
 
 

@@ -9,10 +9,13 @@ environment, the environment over the default) and passes its values down.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+if TYPE_CHECKING:
+    from worker.solvers.settings import PointLimits
 
 __all__ = ["DEFAULT_PORT", "DEFAULT_URL", "Settings", "validate_cron"]
 
@@ -61,6 +64,17 @@ class Settings(BaseSettings):
     nightly_dir: Path | None = None
     # The service the CLI's client commands (submit, status) talk to.
     url: str = DEFAULT_URL
+    # Budget of one point (worker.simulate.PointLimits): over it, the point is failed with
+    # the reason, so one pathological point never holds a worker for long.
+    point_time_limit_s: float = Field(600.0, gt=0, le=86_400)
+    point_step_limit: int = Field(10**9, ge=1, le=10**12)
+    # Wall-time budget of one /timeseries recomputation (run on the cluster, then cached).
+    timeseries_time_limit_s: float = Field(60.0, gt=0, le=3600)
+    # Studies run at once, sharing the cluster chunk by chunk (the rest wait in order).
+    max_running_studies: int = Field(4, ge=1, le=64)
+    # A running study belongs to one service process: its lease in the catalogue, renewed
+    # every ttl/3; another process takes it over only after the lease expired (a crash).
+    lease_ttl_s: float = Field(30.0, ge=2, le=3600)
 
     @field_validator("api_token", "database_url", "scheduler", "nightly_cron", mode="before")
     @classmethod
@@ -75,21 +89,11 @@ class Settings(BaseSettings):
             return v
         return validate_cron(v)
 
-    @classmethod
-    def from_flags(cls, **flags: Any) -> Settings:
-        """The environment's settings with the command-line flags that were given on top.
+    def point_limits(self) -> PointLimits:
+        """The budget of one point."""
+        from worker.solvers.settings import PointLimits  # not at import: the CLI starts fast
 
-        Flags that are ``None`` (not given) leave the environment's value or the default.
-
-        Raises
-        ------
-        ValueError
-            Naming every bad field and its value (the CLI exits 2 with it).
-        """
-        try:
-            return cls(**{k: v for k, v in flags.items() if v is not None})
-        except ValidationError as exc:
-            raise ValueError(str(exc)) from None
+        return PointLimits(wall_s=self.point_time_limit_s, steps=self.point_step_limit)
 
     def catalogue_url(self) -> str:
         """The catalogue's SQLAlchemy URL (a SQLite file in the data dir by default)."""

@@ -11,13 +11,13 @@ import argparse
 import sys
 from typing import Any
 
+from service.cli.common import settings_from_flags
+
 __all__ = ["add_commands"]
 
 
 def _settings(args: argparse.Namespace) -> Any:
-    from service.api.settings import Settings
-
-    return Settings.from_flags(data_dir=args.data_dir, database_url=args.database_url)
+    return settings_from_flags(data_dir=args.data_dir, database_url=args.database_url)
 
 
 def _run(args: argparse.Namespace, action: Any) -> int:

@@ -6,19 +6,22 @@ import argparse
 import json
 import sys
 
-from service.cli.study import positive_int
+from service.cli.common import check_service_url, positive_int, settings_from_flags
 
 __all__ = ["add_commands"]
 
 
 def _cmd_nightly(args: argparse.Namespace) -> int:
-    from service.api.settings import Settings
     from service.regression.run import run_suite
 
     if args.url is not None and args.serial:
         raise ValueError("--serial runs embedded; it cannot be combined with --url")
+    if args.url is not None:
+        check_service_url(args.url)  # reachability: run_suite, before any work
     # --data-dir and --token over IMPACTCELL_DATA_DIR and _API_TOKEN; IMPACTCELL_MAX_POINTS.
-    settings = Settings.from_flags(data_dir=args.data_dir, api_token=args.token)
+    settings = settings_from_flags(
+        {"api_token": "--token"}, data_dir=args.data_dir, api_token=args.token
+    )
 
     def log(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -37,7 +40,8 @@ def _cmd_nightly(args: argparse.Namespace) -> int:
         log=None if args.quiet else log,
     )
     if args.json:
-        print(json.dumps(report.to_json()))
+        extra = {"catalogued": report.catalogued} if report.catalogued else {}
+        print(json.dumps({**report.to_json(), **extra}))
     else:
         for s in report.studies:
             extra = f" ({len(s.regressions)} changed points)" if s.regressions else ""
@@ -52,6 +56,14 @@ def _cmd_nightly(args: argparse.Namespace) -> int:
             verdict = "updated" if report.ok else "NOT all baselines written"
         print(f"{verdict}: {report.summary()}")
         print(f"{report.wall_s:.1f} s; report in {report.report_dir}")
+        if report.catalogued:
+            print(f"catalogued as {report.catalogued}")
+    if report.catalogue_error:
+        print(
+            f"impactcell: warning: the report is not in the service's catalogue: "
+            f"{report.catalogue_error}",
+            file=sys.stderr,
+        )
     return 0 if report.ok else 1
 
 
@@ -61,14 +73,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "nightly",
         help="run the regression suite and compare with the baselines",
         description="Run every study in the suite folder and compare it with its baseline. "
-        "Exit status 0: no regression; 1: a regression, a missing baseline or a run that "
-        "failed; 2: bad input.",
+        "Exit status 0: no regression; 1: a regression or a run that failed; 2: bad input "
+        "(a bad suite, missing baselines, a service that cannot be reached), found before "
+        "anything runs.",
     )
     p.add_argument(
         "--url",
         default=None,
         help="run on an impactcell service at this URL (each study tagged with this run, so "
-        "the service computes it afresh)",
+        "the service computes it afresh; the report is catalogued there, GET /regressions) "
+        "(default: embedded, no service)",
     )
     p.add_argument(
         "--token",

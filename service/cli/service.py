@@ -4,12 +4,21 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from service.api.settings import DEFAULT_URL
+from service.cli.common import (
+    Failure,
+    check_port_free,
+    positive_int,
+    probe_scheduler,
+    probe_service,
+    settings_from_flags,
+)
 
 __all__ = ["add_commands"]
 
@@ -18,12 +27,18 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from service.api.app import create_app
-    from service.api.settings import Settings
 
-    settings = Settings.from_flags(
+    settings = settings_from_flags(
         host=args.host, port=args.port, data_dir=args.data_dir, scheduler=args.scheduler,
         database_url=args.database_url, workers=args.workers,
     )  # fmt: skip
+    # uvicorn binds only after the start-up (catalogue, job runner): a taken port fails now.
+    check_port_free(settings.host, settings.port)
+    if settings.scheduler:
+        try:  # not fatal: the service connects when a study first needs the cluster
+            probe_scheduler(settings.scheduler)
+        except Failure as exc:
+            print(f"impactcell: warning: {exc}; studies wait until it is up", file=sys.stderr)
     catalogue = _without_password(settings.catalogue_url())
     print(
         f"impactcell service on http://{settings.host}:{settings.port} "
@@ -79,11 +94,12 @@ def _wait(client: Any, study_id: str, progress: bool) -> dict[str, Any]:
 
 
 def _client(args: argparse.Namespace) -> Any:
-    from service.api.settings import Settings
     from service.client import Client
 
     # --url and --token over IMPACTCELL_URL and IMPACTCELL_API_TOKEN ("": no token).
-    settings = Settings.from_flags(url=args.url, api_token=args.token)
+    settings = settings_from_flags({"api_token": "--token"}, url=args.url, api_token=args.token)
+    # httpx would wait its whole timeout for a host that does not answer: probe first.
+    probe_service(settings.url, "--url" if args.url is not None else "IMPACTCELL_URL")
     return Client(settings.url, token=settings.api_token or "")
 
 
@@ -92,6 +108,7 @@ def _cmd_submit(args: argparse.Namespace) -> int:
     from service.studies.shipped import resolve_study_file
 
     study = resolve_study_file(args.study)
+    _readable(study)
     with _client(args) as c:
         try:
             rec = c.submit(study)
@@ -101,18 +118,29 @@ def _cmd_submit(args: argparse.Namespace) -> int:
                 print(f"{rec['id']}  finished in {rec['wall_s'] or 0:.1f} s, "
                       f"{rec['points_failed']} failed")  # fmt: skip
         except StudyFailed as exc:
-            print(f"impactcell: {exc}", file=sys.stderr)
-            return 1
+            raise Failure(str(exc)) from None
         except ClientError as exc:
-            _print_problems(exc)
-            return 2
+            return _print_problems(exc)
     return 0
 
 
-def _print_problems(exc: Any) -> None:
+def _readable(path: Path) -> None:
+    """ValueError (exit 2) for a study file that cannot be read as UTF-8 text."""
+    try:
+        path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise ValueError(f"cannot read study file {path}: {reason}") from None
+
+
+def _print_problems(exc: Any) -> int:
+    """The service's error answer on stderr; exit 1 for its own failures (5xx), else 2."""
+    from service.client import ServerError
+
     print(f"impactcell: error: {exc.message}", file=sys.stderr)
     for p in exc.problems or []:
         print(f"  {p.get('path')}: {p.get('message')}", file=sys.stderr)
+    return 1 if isinstance(exc, ServerError) else 2
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
@@ -122,8 +150,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
         try:
             recs = [c.get(args.id)] if args.id else c.list(limit=args.limit)
         except ClientError as exc:
-            _print_problems(exc)
-            return 2
+            return _print_problems(exc)
     if args.json:
         print(json.dumps(recs[0] if args.id else recs))
         return 0
@@ -144,16 +171,17 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from service.api.server import ServerThread
-    from service.api.settings import Settings
     from service.client import Client
     from service.studies.dataset import encoding
     from service.studies.shipped import resolve_study_file
 
     study = resolve_study_file(args.study or ("paper-fig5-gaps" if args.full else "demo-fig5"))
-    out = Path(args.out).resolve()
-    out.mkdir(parents=True, exist_ok=True)
-    settings = Settings(host="127.0.0.1", port=0, data_dir=out / "data", api_token=None,
-                        workers=args.workers)  # fmt: skip
+    _readable(study)
+    out = _output_folder(args.out)
+    # The demo's own service: on a free loopback port, without a token whatever the environment.
+    settings = settings_from_flags(
+        host="127.0.0.1", port=0, data_dir=out / "data", workers=args.workers
+    ).model_copy(update={"api_token": None})
     t0 = time.perf_counter()
     server = ServerThread(settings).start()
     print(f"service on {server.url} (embedded LocalCluster), data in {settings.data_dir}",
@@ -168,14 +196,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             nc = out / f"{rec['name']}.nc"
             ds.to_netcdf(nc, engine="netcdf4", encoding=encoding(ds))
             sel = _demo_selection(ds, "gamma_r", "gap")
-            gaps = c.bandgap_map(rec["id"], x="gamma_r", y="gap", nearest=True, **sel)
+            # self-describing: variable, axes with units, threshold and the slice it used
+            doc = c.bandgap_json(rec["id"], x="gamma_r", y="gap", nearest=True, **sel)
             png = out / "bandgap.png"
             png.write_bytes(c.plot(rec["id"], "bandgap", x="gamma_r", y="gap", **sel))
             (out / "transmittance.png").write_bytes(
                 c.plot(rec["id"], "transmittance", x="gamma_r", hue="gap", **sel)
             )
-            edges = json.loads(gaps.attrs["edges"])
-            (out / "bandgap.json").write_text(json.dumps(edges, indent=1), encoding="utf-8")
+            edges = doc["edges"]
+            (out / "bandgap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
     finally:
         server.stop()
     print(f"{rec['points_total']:,} points in {time.perf_counter() - t0:.1f} s "
@@ -187,6 +216,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"wrote {nc.name}, bandgap.png, transmittance.png, bandgap.json to")
     print(out)
     return 0
+
+
+def _output_folder(text: str) -> Path:
+    """The ``--out`` folder, created and writable, or ValueError (exit 2) before any work."""
+    out = Path(text).resolve()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {text}: cannot create the folder: {exc.strerror or exc}") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {text}: the folder is not writable")
+    return out
 
 
 def _demo_selection(ds: Any, x: str, y: str) -> dict[str, float]:
@@ -216,9 +257,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="catalogue SQLAlchemy URL (default: SQLite in the data dir)",
     )
-    p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
     p.add_argument(
-        "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="embedded cluster processes (default: one per core)",
+    )
+    p.add_argument(
+        "--log-level",
+        default="info",
+        choices=["critical", "error", "warning", "info", "debug"],
+        help="uvicorn's log level",
     )
     p.set_defaults(func=_cmd_serve)  # fmt: skip
 
@@ -237,7 +286,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("id", nargs="?", default=None, help="study id (default: list studies)")
     p.add_argument("--url", default=None, help=url_help)
     p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
-    p.add_argument("--limit", type=int, default=20, help="studies to list")
+    p.add_argument("--limit", type=positive_int, default=20, help="studies to list")
     p.add_argument("--json", action="store_true", help="JSON output")
     p.set_defaults(func=_cmd_status)
 
@@ -250,7 +299,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="the full paper-fig5-gaps study (5,820 points) instead of the demo cut",
     )
-    p.add_argument("--study", default=None, help="another study file or shipped study name")
-    p.add_argument("--workers", type=int, default=None, help="embedded cluster processes")
+    p.add_argument(
+        "--study",
+        default=None,
+        help="another study file or shipped study name (default: demo-fig5, with --full "
+        "paper-fig5-gaps)",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="embedded cluster processes (default: one per core)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_demo)  # fmt: skip

@@ -4,13 +4,37 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
+from service.cli.common import Failure, positive_int
 from worker.solvers.settings import DEFAULT_METHOD, METHODS
 
-__all__ = ["add_commands"]
+__all__ = ["FIELD_FLAGS", "add_commands"]
+
+T = TypeVar("T")
+
+# The model's and solver's field names (in their error messages) -> the flag a user types. The
+# one place that knows both: errors say ``--gap must be >= 0``, never ``g1 must be >= 0``.
+FIELD_FLAGS: dict[str, str] = {
+    "theta": "--theta",
+    "sigma": "--sigma",
+    "gamma_s": "--gamma-s",
+    "gamma_r": "--gamma-r",
+    "xi": "--xi",
+    "xi_b": "--xi-b",
+    "g1": "--g1",
+    "g2": "--g2",
+    "modes": "--modes",
+    "coupling": "--coupling",
+    "method": "--method",
+    "steps_per_period": "--steps-per-period",
+    "max_periods": "--max-periods",
+}
 
 
 def _cell_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,19 +44,53 @@ def _cell_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--xi", type=float, default=0.05, help="damping ratio ξ")
     p.add_argument("--xi-b", type=float, default=None, help="beam Rayleigh ratio (default ξ)")
     p.add_argument("--gap", type=float, default=0.1, help="both clearances g̃1 = g̃2")
-    p.add_argument("--g1", type=float, default=None, help="clearance to stop 1 (overrides --gap)")
-    p.add_argument("--g2", type=float, default=None, help="clearance to stop 2 (overrides --gap)")
+    p.add_argument("--g1", type=float, default=None, help="clearance to stop 1 (default: --gap)")
+    p.add_argument("--g2", type=float, default=None, help="clearance to stop 2 (default: --gap)")
     p.add_argument("--modes", type=int, default=5, help="number of beam modes, 1…30")
     p.add_argument("--coupling", default="paper", help="paper (Eq. 29) or full")
     p.add_argument(
         "--method", default=None, help=f"{', '.join(METHODS)} (default {DEFAULT_METHOD})"
     )
-    p.add_argument("--steps-per-period", type=int, default=None, help="time steps per period")
+    p.add_argument(
+        "--steps-per-period",
+        type=int,
+        default=None,
+        help="time steps per period (default: the method's)",
+    )
     p.add_argument("--max-periods", type=int, default=None,
                    help="period budget (default: the solver's)")  # fmt: skip
 
 
-def _params(args: argparse.Namespace, gamma_r: float):
+def _flags(args: argparse.Namespace, **override: str) -> dict[str, str]:
+    """:data:`FIELD_FLAGS` as this command line spelled them (``--gap`` sets g1 and g2)."""
+    names = dict(FIELD_FLAGS)
+    for g in ("g1", "g2"):
+        if getattr(args, g) is None:
+            names[g] = "--gap"
+    return {**names, **override}
+
+
+def in_flag_terms(message: str, names: Mapping[str, str]) -> str:
+    """``message`` with the field it starts with, and any other snake_case or numbered field
+    (``gamma_r``, ``g1``) it mentions, replaced by the flag a user types."""
+    head = re.match(r"(\w+)\b", message)
+    if head and head.group(1) in names:
+        message = names[head.group(1)] + message[head.end() :]
+    for field, flag in names.items():
+        if "_" in field or any(ch.isdigit() for ch in field):
+            message = re.sub(rf"(?<![\w-]){re.escape(field)}\b", flag, message)
+    return message
+
+
+def _flagged(names: Mapping[str, str], make: Callable[[], T]) -> T:
+    """``make()``, its ValueError said in terms of the command line's flags."""
+    try:
+        return make()
+    except ValueError as exc:
+        raise ValueError(in_flag_terms(str(exc), names)) from None
+
+
+def _params(args: argparse.Namespace, gamma_r: float) -> Any:
     from worker.model import CellParams
 
     g1 = args.gap if args.g1 is None else args.g1
@@ -43,7 +101,7 @@ def _params(args: argparse.Namespace, gamma_r: float):
     )  # fmt: skip
 
 
-def _settings(args: argparse.Namespace):
+def _settings(args: argparse.Namespace) -> Any:
     from worker.simulate import SolverSettings
 
     given = {"method": args.method, "steps_per_period": args.steps_per_period,
@@ -51,7 +109,7 @@ def _settings(args: argparse.Namespace):
     return SolverSettings(**{k: v for k, v in given.items() if v is not None})
 
 
-def _outcome_text(r) -> str:
+def _outcome_text(r: Any) -> str:
     """``linear``, ``periodic (period 2)``, ``irregular`` or ``unsettled``."""
     if r.outcome == "periodic":
         return f"periodic (period {r.response_period})"
@@ -61,13 +119,16 @@ def _outcome_text(r) -> str:
 def _cmd_point(args: argparse.Namespace) -> int:
     from worker.simulate import simulate_point
 
-    result = simulate_point(_params(args, args.gamma_r), _settings(args))
+    names = _flags(args)
+    params = _flagged(names, lambda: _params(args, args.gamma_r))
+    settings = _flagged(names, lambda: _settings(args))
+    result = _flagged(names, lambda: simulate_point(params, settings))
     d = result.as_dict()
     if args.json:
-        print(json.dumps(d))
-        return 0
+        print(json.dumps(d))  # the record of a failed point too; the exit status says it failed
     if result.failed:
-        print(f"failed: {result.reason}")
+        raise Failure(f"the point failed: {result.reason}")
+    if args.json:
         return 0
     se = result.transmittance_db_se
     print(f"transmittance Γ     {result.transmittance_db:.6f}"
@@ -91,12 +152,16 @@ def _cmd_point(args: argparse.Namespace) -> int:
 def _cmd_spectrum(args: argparse.Namespace) -> int:
     from worker.simulate import simulate_point
 
-    if args.num < 1:
-        raise ValueError(f"num must be >= 1, got {args.num}")
-    settings = _settings(args)
+    names = _flags(args)
+    settings = _flagged(names, lambda: _settings(args))
+    # Both ends checked first, each named by its flag (the frequencies between are in range).
+    for end in ("start", "stop"):
+        value = getattr(args, f"gamma_r_{end}")
+        _flagged(_flags(args, gamma_r=f"--gamma-r-{end}"), lambda v=value: _params(args, v))
     rows = []
     for g in np.linspace(args.gamma_r_start, args.gamma_r_stop, args.num):
-        r = simulate_point(_params(args, float(g)), settings)
+        params = _flagged(names, lambda g=g: _params(args, float(g)))
+        r = _flagged(names, lambda p=params: simulate_point(p, settings))
         rows.append((float(g), r))
     if args.json:
         print(json.dumps([{"gamma_r": g, **r.as_dict()} for g, r in rows]))
@@ -146,9 +211,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("spectrum", help="transmittance over a γ_r range")
     _cell_arguments(p)
-    p.add_argument("--gamma-r-start", type=float, default=0.2)
-    p.add_argument("--gamma-r-stop", type=float, default=6.0)
-    p.add_argument("--num", type=int, default=30)
+    p.add_argument("--gamma-r-start", type=float, default=0.2, help="first γ_r")
+    p.add_argument("--gamma-r-stop", type=float, default=6.0, help="last γ_r")
+    p.add_argument("--num", type=positive_int, default=30, help="frequencies, evenly spaced")
     p.add_argument("--json", action="store_true", help="a JSON list on stdout")
     p.set_defaults(func=_cmd_spectrum)
 

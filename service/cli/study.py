@@ -8,31 +8,27 @@ import json
 import sys
 from typing import Any
 
-__all__ = ["add_commands", "positive_int"]
+from service.cli.common import positive_int, probe_scheduler, settings_from_flags
 
-
-def positive_int(text: str) -> int:
-    """An argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+__all__ = ["add_commands"]
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from service.api.settings import Settings
     from service.studies.runner import run_study
     from service.studies.schema import load_study
     from service.studies.shipped import resolve_study_file
 
     # --out, --scheduler and --max-points over IMPACTCELL_DATA_DIR, _SCHEDULER, _MAX_POINTS.
-    settings = Settings.from_flags(
-        data_dir=args.out, scheduler=args.scheduler, max_points=args.max_points
-    )
+    settings = settings_from_flags(
+        {"data_dir": "--out"},
+        data_dir=args.out, scheduler=args.scheduler, max_points=args.max_points,
+    )  # fmt: skip
     study = load_study(resolve_study_file(args.study), max_points=settings.max_points)
+    if settings.scheduler and not args.serial:
+        # dask waits 30 s for a scheduler that is down; a probe says so in milliseconds.
+        probe_scheduler(
+            settings.scheduler, "--scheduler" if args.scheduler else "IMPACTCELL_SCHEDULER"
+        )
     bar: Any = None
     progress = None
     if not args.no_progress:
@@ -89,6 +85,12 @@ def _cmd_show(args: argparse.Namespace) -> int:
     from service.studies.variables import OUTCOMES
 
     ds = open_results(args.file)
+    # Any NetCDF file opens; only a study's results have these (older ones lack ``outcome``).
+    if "failed" not in ds or "study_id" not in ds.attrs:
+        raise ValueError(
+            f"{args.file} is not an impactcell results file (no 'failed' variable or "
+            "'study_id' attribute); `impactcell run` writes them to DIR/studies/<id>/results.nc"
+        )
     if args.json:
         print(json.dumps({**summarize(ds), "attrs": {k: str(v) for k, v in ds.attrs.items()}}))
         return 0

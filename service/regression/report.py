@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,8 @@ class NightlyReport:
     notes: list[str] = field(default_factory=list)
     report_dir: str | None = None
     max_rows: int = 200  # markdown rows of changes per study (the JSON has them all)
+    catalogued: str | None = None  # the service's URL of this report (runs through --url)
+    catalogue_error: str | None = None  # why a run through --url could not catalogue it
 
     @property
     def ok(self) -> bool:
@@ -91,7 +94,8 @@ class NightlyReport:
             f"# Nightly regression: {verdict}",
             "",
             f"Started {self.started}, {self.wall_s:.1f} s, mode {self.mode}. Suite `{self.suite}`, "
-            f"baselines `{self.baselines}`.",
+            f"baselines `{self.baselines}` (paths relative to the suite's parent folder; results "
+            "relative to this report's folder).",
             "",
             self.summary() + ".",
             "",
@@ -153,7 +157,36 @@ class NightlyReport:
         if msgs:
             lines += ["", "## Notes and errors", ""]
             lines += [f"- {who}: {m}" for who, m in msgs]
-        return "\n".join(lines) + "\n"
+        return self._relative_paths()("\n".join(lines) + "\n")
+
+    def _relative_paths(self) -> Callable[[str], str]:
+        """A function that rewrites the run's absolute paths in a text relative to the suite's
+        parent folder (suite, baselines) or this report's folder (results): a report read on
+        another machine, or served by the service, shows no server paths."""
+        suite, base = Path(self.suite), Path(self.baselines)
+        root = suite.parent
+        shown: dict[str, str] = {}
+        # Absolute paths only (relative ones are not the server's), never "/" itself.
+        if root.is_absolute() and len(root.parts) > 1:
+            shown[str(root)] = "."
+            shown[str(suite)] = os.path.relpath(suite, root)
+            if base.is_absolute():
+                shown[str(base)] = os.path.relpath(base, root)
+        if self.report_dir and Path(self.report_dir).is_absolute():
+            shown[str(Path(self.report_dir))] = "."
+        if not shown:
+            return lambda text: text
+        keys = sorted(shown, key=len, reverse=True)  # the longest (most specific) path first
+        alternatives = "|".join(re.escape(k) for k in keys)
+        pattern = re.compile(rf"(?<![\w/.-])({alternatives})(?![\w.-])(/)?")
+
+        def sub(m: re.Match[str]) -> str:
+            rel = shown[m.group(1)]
+            if m.group(2):  # a path inside: drop a leading "./"
+                return "" if rel == "." else rel + "/"
+            return rel
+
+        return lambda text: pattern.sub(sub, text)
 
     def write(self, directory: str | os.PathLike[str]) -> tuple[Path, Path]:
         """Write ``report.json`` and ``report.md`` into ``directory``."""

@@ -34,6 +34,8 @@ from service.studies.shipped import ShippedStudyError, baselines_dir, in_source_
 
 __all__ = [
     "check_baseline_folder",
+    "check_baselines",
+    "check_service",
     "evaluate",
     "make_report",
     "new_run_dir",
@@ -137,6 +139,60 @@ def check_baseline_folder(base_dir: Path, update: bool) -> None:
         ])  # fmt: skip
 
 
+def check_baselines(entries: list[SuiteEntry], base_dir: Path, update: bool) -> None:
+    """:func:`check_baseline_folder`, and (unless updating) a baseline for every study.
+
+    Checked before anything runs: a run without its baselines could compare nothing.
+
+    Raises
+    ------
+    SuiteError
+        The folder is unusable, or (not updating) it or some study's baseline is missing.
+    """
+    check_baseline_folder(base_dir, update)
+    if update:
+        return
+    if not base_dir.is_dir():
+        raise SuiteError([
+            f"baseline folder {base_dir} does not exist; give the right one with --baselines DIR, "
+            "or create the baselines with --update-baseline"
+        ])  # fmt: skip
+    missing = [f"{e.stem}.nc" for e in entries if not (base_dir / f"{e.stem}.nc").is_file()]
+    if missing:
+        raise SuiteError([
+            f"no baseline in {base_dir} for {', '.join(missing)}; create "
+            f"{'it' if len(missing) == 1 else 'them'} with --update-baseline"
+        ])  # fmt: skip
+
+
+def check_service(url: str, token: str | None, *, timeout: float = 10.0) -> None:
+    """Check that the service at ``url`` answers and accepts ``token``, before any work.
+
+    Raises
+    ------
+    SuiteError
+        Naming the address: not reachable, not an impactcell service, or the token refused.
+    """
+    import httpx
+
+    from service.client import Client, ClientError
+
+    try:
+        with Client(url, token=token, timeout=timeout) as c:
+            c.health()
+            c.regressions()  # a route behind the token: a wrong token is found now
+    except httpx.HTTPError as exc:
+        reason = str(exc).strip() or type(exc).__name__
+        if reason.startswith("[Errno"):  # "[Errno 111] Connection refused": the words only
+            reason = reason.split("]", 1)[-1].strip()
+        reason = reason.splitlines()[0]
+        raise SuiteError([f"cannot reach the impactcell service at {url}: {reason}"]) from None
+    except ClientError as exc:
+        raise SuiteError([f"the service at {url} refused the request: {exc}"]) from None
+    except ValueError as exc:  # an answer that is not JSON: not an impactcell service
+        raise SuiteError([f"{url} does not answer like an impactcell service: {exc}"]) from None
+
+
 def _same(a: Path, b: Path) -> bool:
     try:
         return a.resolve() == b.resolve()
@@ -206,14 +262,21 @@ def run_suite(
     Raises
     ------
     SuiteError
-        The suite folder or a study file in it is bad, or the baseline folder cannot be used
-        (nothing is run).
+        The suite folder or a study file in it is bad, the baseline folder cannot be used or
+        (not updating) lacks a study's baseline, or the ``url`` service cannot be reached or
+        refuses the token: found before anything runs.
+
+    With ``url``, the finished report is also catalogued on that service
+    (``POST /regressions/reports``): ``report.catalogued`` is its URL, or
+    ``report.catalogue_error`` says why not.
     """
     t0 = time.perf_counter()
     started = _now()
     suite_dir, base_dir = suite_folders(directory, baselines)
     entries = load_suite(suite_dir, max_points=max_points)
-    check_baseline_folder(base_dir, update_baseline)
+    check_baselines(entries, base_dir, update_baseline)
+    if url is not None:
+        check_service(url, token)
     run_dir = new_run_dir(data_dir)
     reports = Path(report_dir) if report_dir is not None else run_dir
     say = log or (lambda _msg: None)
@@ -256,10 +319,41 @@ def run_suite(
     mode = url or (
         "embedded, serial" if serial else f"dask {scheduler}" if scheduler else "embedded"
     )
-    return make_report(
+    report = make_report(
         entries, results, suite_dir, base_dir, mode=mode, update=update_baseline,
         started=started, wall_s=time.perf_counter() - t0, report_dir=reports,
     )  # fmt: skip
+    if url is not None:
+        _catalogue(report, url, token, say)
+    return report
+
+
+MAX_POSTED_CHANGES = 200  # per study, in the copy a service catalogues (report.json has all)
+
+
+def _catalogue(
+    report: NightlyReport, url: str, token: str | None, say: Callable[[str], None]
+) -> None:
+    """Store the report of a run through ``url`` in that service's catalogue (``GET
+    /regressions``), as ``report.catalogued``; a failure is kept in ``report.catalogue_error``
+    (the run itself is done and its report written)."""
+    from service.client import Client
+
+    data = report.to_json()
+    for study in data["studies"]:
+        changes = study.get("changes") or []
+        if len(changes) > MAX_POSTED_CHANGES:  # keep the body under the service's size limit
+            study["changes"] = changes[:MAX_POSTED_CHANGES]
+            study["changes_omitted"] = len(changes) - MAX_POSTED_CHANGES
+    try:
+        with Client(url, token=token) as c:
+            rec = c.record_regression(data, report.to_markdown())
+    except Exception as exc:  # noqa: BLE001 - reported; the run's verdict stands
+        report.catalogue_error = f"{type(exc).__name__}: {exc}"
+        say(f"could not catalogue the report on {url}: {report.catalogue_error}")
+        return
+    report.catalogued = f"{url.rstrip('/')}/regressions/{rec['id']}"
+    say(f"report catalogued as {report.catalogued}")
 
 
 def make_report(

@@ -19,6 +19,7 @@ import os
 import re
 import tempfile
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,7 @@ __all__ = [
     "CHUNK_FIELDS",
     "DEFAULT_DATA_DIR",
     "STUDY_ID",
+    "PartialState",
     "StudyStore",
     "atomic_write",
     "data_root",
@@ -134,6 +136,31 @@ def _columns(records: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
 
 
 # --------------------------------------------------------------------------- the store
+
+
+@dataclass
+class PartialState:
+    """The chunks of a study read so far (:meth:`StudyStore.update_partial`).
+
+    ``cols`` holds every point (pending ones as failed with reason ``pending``), ``filled``
+    marks the points read from chunks, ``seen`` maps each chunk file read to its
+    (inode, mtime_ns, size, retry) so that an unchanged file is never read twice.
+    """
+
+    cols: dict[str, np.ndarray]
+    filled: np.ndarray
+    seen: dict[str, tuple[int, int, int, bool]] = field(default_factory=dict)
+    files_read: int = 0  # chunk files read by the last update (0: nothing new)
+
+    @property
+    def key(self) -> frozenset[tuple[str, int, int, int]]:
+        """Identifies the chunk files the state holds (equal keys: the same data)."""
+        return frozenset((k, *v[:3]) for k, v in self.seen.items())
+
+    @property
+    def has_retry(self) -> bool:
+        """Whether a chunk read failed as a task (its points will be computed again)."""
+        return any(v[3] for v in self.seen.values())
 
 
 class StudyStore:
@@ -261,19 +288,58 @@ class StudyStore:
         Points without results are filled as failed with reason ``pending``. Chunk files that
         vanish while reading (a run finishing and tidying up) are treated as not there.
         """
-        cols, filled = self._gather(strict=False)
-        missing = int((~filled).sum())
-        if missing:
-            from worker.simulate import SolverSettings, failed_result
+        state = self.update_partial(None)
+        return state.cols, state.filled
 
-            rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
-            fill = _columns([rec])
-            for name, arr in fill.items():
-                if name not in cols:
-                    dtype = object if arr.dtype.kind == "U" else arr.dtype
-                    cols[name] = np.empty((filled.size, *arr.shape[1:]), dtype=dtype)
-                cols[name][~filled] = arr[0]
-        return cols, filled
+    def update_partial(self, state: PartialState | None) -> PartialState:
+        """``state`` brought up to date with the chunk files on disk, reading only new ones.
+
+        A chunk file seen before is not read again; when one that was read has vanished or
+        changed (a retry chunk removed for recomputation, the run tidying up), the state is
+        built afresh. ``state`` is updated in place (callers hold a lock around it).
+        """
+        listing = {path.name: (start, stop, path) for start, stop, path in self.chunks()}
+        # (inode, mtime, size): every write is a rename of a new file, so a rewritten chunk has a
+        # new inode even where timestamps are coarse.
+        stamps: dict[str, tuple[int, int, int]] = {}
+        for name, (_, _, path) in listing.items():
+            try:
+                st = path.stat()
+            except OSError:
+                continue
+            stamps[name] = (st.st_ino, st.st_mtime_ns, st.st_size)
+        if state is None or any(stamps.get(k) != v[:3] for k, v in state.seen.items()):
+            state = self._empty_partial()
+        state.files_read = 0
+        n = state.filled.size  # not study.size: that expands the grid on every call
+        for name, stamp in stamps.items():
+            if name in state.seen:
+                continue
+            start, stop, path = listing[name]
+            data = self._load_chunk(path) if 0 <= start < stop <= n else None
+            if data is None:  # vanished or half-visible: try again at the next update
+                continue
+            if state.filled[start:stop].any():
+                raise ValueError(f"chunk file {path} overlaps another chunk")
+            for col in CHUNK_FIELDS:
+                state.cols[col][start:stop] = data[col]
+            state.filled[start:stop] = True
+            state.seen[name] = (*stamp, bool(data["_retry"]))
+            state.files_read += 1
+        return state
+
+    def _empty_partial(self) -> PartialState:
+        """Every point pending: the fill record of a failed point with reason ``pending``."""
+        from worker.simulate import SolverSettings, failed_result
+
+        rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
+        n = self.study.size
+        cols: dict[str, np.ndarray] = {}
+        for name, arr in _columns([rec]).items():
+            dtype = object if arr.dtype.kind == "U" else arr.dtype
+            cols[name] = np.empty((n, *arr.shape[1:]), dtype=dtype)
+            cols[name][:] = arr[0]
+        return PartialState(cols=cols, filled=np.zeros(n, dtype=bool))
 
     def _gather(self, strict: bool) -> tuple[dict[str, np.ndarray], np.ndarray]:
         n = self.study.size

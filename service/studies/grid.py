@@ -4,6 +4,10 @@ An axis is a scalar, a list of numbers, or a range (``{start, stop, num}``, an i
 linspace; ``{start, stop, step}``; ``{start, stop, num, scale: log}``). :data:`Real` and
 :data:`Integer` are the number types of every study-file field: YAML 1.1 reads ``1e-3`` (no
 dot) as a string, so numeric strings are accepted; booleans never are.
+
+An axis's size is known without building it (:func:`axis_size`): a range has at most
+:data:`MAX_AXIS_VALUES` values, and the study's point limit is checked on sizes alone, so a
+definition that asks for 10⁹ values is refused before any array exists.
 """
 
 from __future__ import annotations
@@ -13,34 +17,65 @@ from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Tag, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    field_validator,
+    model_validator,
+)
+
+from worker.checks import shown
 
 __all__ = [
     "AXIS_TAGS",
+    "MAX_AXIS_VALUES",
     "Axis",
     "Integer",
     "Range",
     "Real",
     "StrictModel",
+    "axis_size",
     "axis_values",
+    "number",
 ]
+
+#: The most values one range may have (``num``, or what ``step`` gives). Far above any real
+#: study axis (the shipped ones have at most 291), low enough to be built in about a second.
+MAX_AXIS_VALUES = 1_000_000
 
 
 # --------------------------------------------------------------------------- numbers
 
 
-def _real(value: Any) -> Any:
-    # YAML 1.1 reads ``1e-3`` (no dot) as a string; accept numeric strings, refuse booleans.
+def number(value: Any) -> Any:
+    """A study-file number as given, a numeric string as a float (YAML 1.1 reads ``1e-3``, no
+    dot, as a string), a boolean refused; whether it is finite is left to the caller."""
     if isinstance(value, bool):
         raise ValueError(f"must be a number, got {value!r}")
     if isinstance(value, str):
         try:
-            value = float(value)
+            return float(value)
         except ValueError:
-            raise ValueError(f"must be a number, got {value!r}") from None
-    if isinstance(value, (int, float)) and not math.isfinite(float(value)):
-        raise ValueError(f"must be finite, got {value!r}")
+            raise ValueError(f"must be a number, got {shown(value)}") from None
     return value
+
+
+def _real(value: Any) -> Any:
+    value = number(value)
+    if isinstance(value, (int, float)) and not math.isfinite(_as_float(value)):
+        raise ValueError(f"must be finite, got {shown(value)}")
+    return value
+
+
+def _as_float(value: float) -> float:
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond the float range (10**400)
+        return math.inf
 
 
 Real = Annotated[float, BeforeValidator(_real)]
@@ -49,6 +84,9 @@ Real = Annotated[float, BeforeValidator(_real)]
 def _integer(value: Any) -> Any:
     if isinstance(value, bool):
         raise ValueError(f"must be an integer, got {value!r}")
+    if isinstance(value, float) and not math.isfinite(value):
+        # inf, nan, or an integer literal too long to read (files.HugeInteger)
+        raise ValueError(f"must be an integer, got {shown(value)}")
     return value
 
 
@@ -65,25 +103,40 @@ class StrictModel(BaseModel):
 
 
 def _count(start: float, stop: float, step: float) -> int:
+    """How many values ``{start, stop, step}`` has, without building them; a count beyond
+    :data:`MAX_AXIS_VALUES` (or one a float cannot hold: a step of 1e-320) is returned as
+    ``MAX_AXIS_VALUES + 1``."""
     # Include ``stop`` when it is reached up to rounding (0.2 + 29·0.2 == 6.0).
-    return math.floor((stop - start) / step * (1 + 1e-12) + 1e-9) + 1
+    n = (stop - start) / step * (1 + 1e-12) + 1e-9
+    if not math.isfinite(n) or n >= MAX_AXIS_VALUES:
+        return MAX_AXIS_VALUES + 1
+    return math.floor(n) + 1
 
 
 class Range(StrictModel):
-    """``{start, stop, num}`` (inclusive linspace), ``{start, stop, step}`` or log-spaced."""
+    """``{start, stop, num}`` (inclusive linspace), ``{start, stop, step}`` or log-spaced.
+
+    ``num`` is at most :data:`MAX_AXIS_VALUES`, and so is the count a ``step`` gives.
+    """
 
     start: Real
     stop: Real
-    num: Integer | None = None
-    step: Real | None = None
+    num: Integer | None = Field(None, json_schema_extra={"minimum": 1, "maximum": MAX_AXIS_VALUES})
+    step: Real | None = Field(None, json_schema_extra={"exclusiveMinimum": 0})
     scale: Literal["linear", "log"] = "linear"
+
+    @field_validator("num")
+    @classmethod
+    def _num(cls, num: int | None) -> int | None:
+        if num is not None and not 1 <= num <= MAX_AXIS_VALUES:
+            got = num if abs(num) < 10**20 else shown(num)
+            raise ValueError(f"num must be an integer in 1…{MAX_AXIS_VALUES:,}, got {got}")
+        return num
 
     @model_validator(mode="after")
     def _check(self) -> Range:
         if (self.num is None) == (self.step is None):
             raise ValueError("give exactly one of num and step")
-        if self.num is not None and self.num < 1:
-            raise ValueError(f"num must be >= 1, got {self.num}")
         if self.step is not None:
             if self.scale == "log":
                 raise ValueError("scale log needs num, not step")
@@ -93,14 +146,32 @@ class Range(StrictModel):
                 raise ValueError(
                     f"stop must be >= start with a step, got {self.stop} < {self.start}"
                 )
-            count = _count(self.start, self.stop, self.step)
-            if count > 100_000_000:
-                raise ValueError(f"range has {count} values, more than 100,000,000")
+            if _count(self.start, self.stop, self.step) > MAX_AXIS_VALUES:
+                span = (self.stop - self.start) / self.step
+                raise ValueError(
+                    f"range has {span:.4g} values (from {self.start:g} to {self.stop:g} by "
+                    f"{self.step:g}), more than {MAX_AXIS_VALUES:,}"
+                )
         if self.scale == "log" and (self.start <= 0 or self.stop <= 0):
             raise ValueError(
                 f"scale log needs start > 0 and stop > 0, got start={self.start}, stop={self.stop}"
             )
         return self
+
+    @property
+    def size(self) -> int:
+        """How many values the range has (arithmetic: nothing is built)."""
+        if self.num is not None:
+            return self.num
+        assert self.step is not None
+        return _count(self.start, self.stop, self.step)
+
+    @property
+    def last(self) -> float:
+        """The last value (``stop`` unless a step falls short of it)."""
+        if self.step is not None:
+            return self.start + self.step * (self.size - 1)
+        return self.stop
 
     def values(self) -> np.ndarray:
         """The values of the range, float64."""
@@ -134,6 +205,15 @@ Axis = Annotated[
     | Annotated[Real, Tag("scalar")],
     Discriminator(_axis_kind),
 ]
+
+
+def axis_size(axis: Range | list[float] | float) -> int:
+    """How many values an axis has, without building them."""
+    if isinstance(axis, Range):
+        return axis.size
+    if isinstance(axis, list):
+        return len(axis)
+    return 1
 
 
 def axis_values(axis: Range | list[float] | float) -> np.ndarray:

@@ -8,12 +8,16 @@ Non-dimensional studies vary the parameters of docs/model.md §3; physical studi
 physical field.
 
 Validation reports every problem it can find in one go, each with its path in the file
-(``grid.gamma_r.num: ...``), as a :class:`StudyError` (a ``ValueError``).
+(``grid.gamma_r.num: ...``), as a :class:`StudyError` (a ``ValueError``). Grid sizes are
+arithmetic (:meth:`Study.sizes`): the point limit is checked, and ``size``/``shape`` are
+known, without building any axis; a physical grid's model parameters are checked at its
+corners.
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -22,12 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field, ValidationError
+from pydantic import Field, PrivateAttr, ValidationError
 
 from service.studies.files import read_study_file
-from service.studies.grid import AXIS_TAGS, StrictModel, axis_values
+from service.studies.grid import AXIS_TAGS, Range, StrictModel, axis_size, axis_values
 from service.studies.specs import Grid, ModelSpec, PhysicalSpec, SolverSpec
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
+from worker.model import CellParams
 from worker.physical import CELL_FIELDS, PhysicalCell
 from worker.simulate import SOLVER_VERSION
 
@@ -72,7 +77,7 @@ class Study(StrictModel):
     """A parameter study: the Cartesian product of ``grid``'s axes."""
 
     name: str = Field(min_length=1, max_length=200)
-    description: str = ""
+    description: str = Field("", max_length=10_000)
     # A run tag: part of the id (a new tag is a fresh run of the same definition); absent by
     # default, so untagged studies keep their ids. The nightly suite sets ``nightly-<time>``.
     tag: str | None = Field(None, min_length=1, max_length=100)
@@ -81,6 +86,7 @@ class Study(StrictModel):
     outputs: Outputs = Outputs()
     physical: PhysicalSpec | None = None
     grid: Grid
+    _axes: dict[str, np.ndarray] | None = PrivateAttr(None)
 
     # ---------------------------------------------------------------- identity
 
@@ -106,10 +112,16 @@ class Study(StrictModel):
         return self.physical is not None
 
     def axes(self) -> dict[str, np.ndarray]:
-        """Every grid axis in canonical order, name -> values."""
-        order = PHYSICAL_AXES if self.is_physical else MODEL_AXES
-        given = self.grid.given()
-        return {k: axis_values(given[k]) for k in order if k in given}
+        """Every grid axis in canonical order, name -> values (built once per study object:
+        every chunk's ``points`` reads them)."""
+        if self._axes is None:
+            order = PHYSICAL_AXES if self.is_physical else MODEL_AXES
+            given = self.grid.given()
+            axes = {k: axis_values(given[k]) for k in order if k in given}
+            for v in axes.values():
+                v.flags.writeable = False  # shared by every caller
+            self._axes = axes
+        return dict(self._axes)
 
     def dims(self) -> dict[str, np.ndarray]:
         """The varying axes (more than one value): the dataset's dimensions."""
@@ -119,15 +131,21 @@ class Study(StrictModel):
         """The axes with a single value: the dataset's scalar coordinates."""
         return {k: float(v[0]) for k, v in self.axes().items() if v.size == 1}
 
+    def sizes(self) -> dict[str, int]:
+        """Every grid axis's number of values in canonical order (arithmetic: nothing built)."""
+        order = PHYSICAL_AXES if self.is_physical else MODEL_AXES
+        given = self.grid.given()
+        return {k: axis_size(given[k]) for k in order if k in given}
+
     @property
     def shape(self) -> tuple[int, ...]:
         """Shape of the results (one entry per varying axis)."""
-        return tuple(v.size for v in self.dims().values())
+        return tuple(n for n in self.sizes().values() if n > 1)
 
     @property
     def size(self) -> int:
         """Number of points."""
-        return math.prod(v.size for v in self.axes().values())
+        return math.prod(self.sizes().values())
 
     def coords_at(self, start: int, stop: int) -> dict[str, np.ndarray]:
         """Axis values of points ``start:stop`` (flat C-order index), name -> array."""
@@ -244,16 +262,58 @@ def _grid_problems(
                  f"base_acceleration_m_s2, got {', '.join(excitation) or 'neither'}")
             )  # fmt: skip
         if not out:
-            first = {k: float(axis_values(v)[0]) for k, v in given.items()}
+            first = {k: _ends(v)[0] for k, v in given.items()}
             first.pop("frequency_hz", None)
             try:
                 PhysicalCell(**{**base, **first})
             except (TypeError, ValueError) as exc:
                 out.append(("physical", str(exc)))
-    size = math.prod(axis_values(v).size for v in given.values()) if given else 0
+            else:
+                out += _model_range_problems(base, given)
+    # Sizes, not values: a grid of 10⁹ points is refused without building an axis.
+    sizes = {k: axis_size(v) for k, v in given.items()}
+    size = math.prod(sizes.values()) if given else 0
     if size > limit:
-        out.append(("grid", f"has {size:,} points, more than the limit of {limit:,}"))
+        axes = " × ".join(f"{k} {n:,}" for k, n in sizes.items() if n > 1)
+        out.append(("grid", f"has {size:,} points, more than the limit of {limit:,} ({axes})"))
     return out
+
+
+def _ends(axis: Any) -> tuple[float, float]:
+    """An axis's smallest and largest values, without building it."""
+    if isinstance(axis, Range):
+        return (min(axis.start, axis.last), max(axis.start, axis.last))
+    if isinstance(axis, list):
+        return (float(min(axis)), float(max(axis)))
+    return (float(axis), float(axis))
+
+
+#: The most varying physical axes whose corners (2**n) are checked before a study runs.
+_MAX_CORNER_AXES = 12
+
+
+def _model_range_problems(base: dict[str, Any], given: dict[str, Any]) -> list[tuple[str, str]]:
+    """The model parameters a physical grid maps to, checked against the model's ranges.
+
+    Every model parameter is a product of powers of the physical fields (θ = ρbhL/m_o,
+    σ = Eh²m_o/(12ρL⁴k), γ_r = 2πf/√(k/m_o), g̃ = gθ/U_g), so over a box of physical values
+    it is largest and smallest at the box's corners: checking the corners checks every point.
+    """
+    ends = {k: _ends(v) for k, v in given.items()}
+    varying = [k for k, (lo, hi) in ends.items() if lo != hi]
+    if len(varying) > _MAX_CORNER_AXES:  # too many corners; points are checked as they run
+        return []
+    fixed = {k: lo for k, (lo, hi) in ends.items() if lo == hi}
+    for corner in itertools.product(*(ends[k] for k in varying)):
+        at = {**fixed, **dict(zip(varying, corner, strict=True))}
+        fields = {**base, **at}
+        f = fields.pop("frequency_hz")
+        try:
+            CellParams(**PhysicalCell(**fields).to_model(f))
+        except ValueError as exc:
+            where = ", ".join(f"{k}={v:g}" for k, v in at.items() if k in varying) or "every point"
+            return [("physical", f"at {where} the model's {exc}")]
+    return []
 
 
 # --------------------------------------------------------------------------- errors, loading

@@ -12,6 +12,7 @@ new parameter is added to the worker's type and appears here.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Mapping
 from functools import partial
@@ -20,6 +21,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import (
     AfterValidator,
+    BeforeValidator,
     Field,
     ValidationInfo,
     create_model,
@@ -27,15 +29,25 @@ from pydantic import (
     model_validator,
 )
 
-from service.studies.grid import Axis, Integer, Real, StrictModel, axis_values
+from service.studies.grid import (
+    Axis,
+    Integer,
+    Range,
+    Real,
+    StrictModel,
+    axis_values,
+    number,
+)
 from service.studies.variables import AXES, AXIS_PARAMETER, MODEL_AXES, PHYSICAL_AXES
-from worker.checks import bounds_text, check_field, out_of_bounds
+from worker.checks import bounds_text, check_field, out_of_bounds, shown, violation
 from worker.model import CellParams
 from worker.physical import FREQUENCY_HZ, PhysicalCell
 from worker.simulate import SolverSettings
 
 __all__ = [
     "AXIS_BOUNDS",
+    "MAX_STEPS_PER_POINT",
+    "STUDY_SOLVER_CAPS",
     "Grid",
     "ModelSpec",
     "PhysicalSpec",
@@ -85,9 +97,38 @@ def _schema_bounds(meta: Mapping[str, Any]) -> dict[str, Any]:
     return {keys[k]: meta[k] for k in keys if k in meta}
 
 
-def _spec_field(f: dataclasses.Field[Any], doc: str) -> tuple[Any, Any]:
-    """A dataclass field as a pydantic field: type, default, check and description."""
-    meta = dict(f.metadata)
+def _described(doc: str, meta: Mapping[str, Any]) -> str | None:
+    """A field's description with its allowed range and why (so the schema says them)."""
+    bounded = any(k in meta for k in ("gt", "ge", "lt", "le"))
+    if not bounded or meta.get("choices") or meta.get("boolean"):
+        return doc or None
+    rule = f"an integer in {meta['ge']}…{meta['le']}" if meta.get("integer") else bounds_text(meta)
+    why = f": {meta['why']}" if meta.get("why") else ""
+    return f"{doc} Allowed: {rule}{why}.".strip()
+
+
+def _early_check(name: str, meta: Mapping[str, Any], value: Any) -> Any:
+    """Refuse a non-finite or huge number with the field's range, before the number type's
+    generic refusal (which knows no range, and cannot show a 10**400 by its size)."""
+    value = number(value)
+    if meta.get("integer"):
+        if isinstance(value, float) and not math.isfinite(value):
+            got = shown(value)
+            raise ValueError(f"{name} must be an integer in {meta['ge']}…{meta['le']}, got {got}")
+        return value
+    if isinstance(value, (int, float)):
+        return check_field(name, value, dict(meta))
+    return value
+
+
+def _spec_field(
+    f: dataclasses.Field[Any], doc: str, caps: Mapping[str, Any] | None = None
+) -> tuple[Any, Any]:
+    """A dataclass field as a pydantic field: type, default, check and description.
+
+    ``caps`` tightens the field's bounds for study files (see :data:`STUDY_SOLVER_CAPS`).
+    """
+    meta = {**f.metadata, **(caps or {})}
     if "choices" in meta:
         kind: Any = Literal[tuple(meta["choices"])]  # type: ignore[valid-type]
     elif meta.get("boolean"):
@@ -98,11 +139,17 @@ def _spec_field(f: dataclasses.Field[Any], doc: str) -> tuple[Any, Any]:
         kind = Real
     if not meta.get("choices") and not meta.get("boolean"):
         # The worker's check, so the message is the one a direct call gives.
-        kind = Annotated[kind, AfterValidator(partial(check_field, f.name, meta=meta))]
+        kind = Annotated[
+            kind,
+            AfterValidator(partial(check_field, f.name, meta=meta)),
+            BeforeValidator(partial(_early_check, f.name, meta)),
+        ]
     if meta.get("optional"):
         kind = kind | None
     default = None if f.default is dataclasses.MISSING else f.default
-    return kind, Field(default, description=doc or None, json_schema_extra=_schema_bounds(meta))
+    return kind, Field(
+        default, description=_described(doc, meta), json_schema_extra=_schema_bounds(meta)
+    )
 
 
 def spec_model(
@@ -113,16 +160,18 @@ def spec_model(
     *,
     base: type[StrictModel] = StrictModel,
     optional: bool = False,
+    caps: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> Any:
     """A study-file block (a pydantic model) with the fields ``names`` of dataclass ``cls``.
 
     ``optional``: every field may be left out (None), whatever the dataclass's default.
+    ``caps``: tighter bounds for some fields, by name (a study's limits, not the worker's).
     """
     docs = field_docs(cls)
     by_name = {f.name: f for f in dataclasses.fields(cls)}
     fields = {}
     for n in by_name if names is None else names:
-        kind, info = _spec_field(by_name[n], docs.get(n, ""))
+        kind, info = _spec_field(by_name[n], docs.get(n, ""), (caps or {}).get(n))
         if optional:
             extra = info.json_schema_extra
             kind, info = (
@@ -147,10 +196,37 @@ ModelSpec = spec_model(
 )
 
 
+#: One point's step budget in a study: ``max_periods`` times the steps of a period. With the
+#: caps below a point does at most about 1e9 steps (tens of seconds to minutes), whatever a
+#: study file says; the worker's own limits are wider (direct calls, convergence tests).
+MAX_STEPS_PER_POINT = 10**9
+
+#: Tighter bounds of solver settings for study files (the worker accepts up to 1e7 for each).
+STUDY_SOLVER_CAPS: dict[str, dict[str, Any]] = {
+    "max_periods": {"le": 100_000, "why": (
+        "the period budget of one point; shipped studies use up to 1000, a hundred times "
+        "that is a point of minutes")},
+    "window": {"le": 10_000, "why": "periods per window; less than max_periods"},
+    "steps_per_period": {"le": 65_536, "why": (
+        "the convergence tests need at most 16,384; max_periods × steps_per_period is at "
+        "most 1e9")},
+    "coarse_steps": {"le": 65_536, "why": "free-flight steps per period (default 64)"},
+}  # fmt: skip
+
+
 class _SolverBase(StrictModel):
     @model_validator(mode="after")
     def _check(self) -> Any:
         self.settings()  # cross-field rules (window < max_periods) are SolverSettings' own
+        # One point's work is bounded: periods times the steps each takes.
+        for steps in ("steps_per_period", "coarse_steps"):
+            per = getattr(self, steps)
+            if per is not None and self.max_periods * per > MAX_STEPS_PER_POINT:
+                raise ValueError(
+                    f"max_periods × {steps} must be <= {MAX_STEPS_PER_POINT:.0e} (one point's "
+                    f"step budget), got {self.max_periods} × {per} = "
+                    f"{self.max_periods * per:.3g}"
+                )
         return self
 
     def settings(self) -> SolverSettings:
@@ -163,6 +239,7 @@ SolverSpec = spec_model(
     SolverSettings,
     "How every point is integrated and how it ends (worker.simulate.SolverSettings).",
     base=_SolverBase,
+    caps=STUDY_SOLVER_CAPS,
 )
 
 # Every PhysicalCell field, optional: a grid axis may give it instead.
@@ -177,7 +254,7 @@ PhysicalSpec = spec_model(
 # --------------------------------------------------------------------------- the grid
 
 
-def _axis_bounds() -> dict[str, dict[str, Any]]:
+def _axis_meta() -> dict[str, dict[str, Any]]:
     cell = {f.name: dict(f.metadata) for f in dataclasses.fields(CellParams)}
     physical = {f.name: dict(f.metadata) for f in dataclasses.fields(PhysicalCell)}
     out: dict[str, dict[str, Any]] = {}
@@ -185,14 +262,44 @@ def _axis_bounds() -> dict[str, dict[str, Any]]:
         out[axis] = cell[AXIS_PARAMETER.get(axis, axis)]
     for axis in PHYSICAL_AXES:
         out[axis] = FREQUENCY_HZ if axis == "frequency_hz" else physical[axis]
-    return {k: {b: v[b] for b in ("gt", "ge", "lt", "le") if b in v} for k, v in out.items()}
+    return out
 
+
+#: Every grid axis's field metadata (bounds and why), from the parameter it sets.
+AXIS_META: dict[str, dict[str, Any]] = _axis_meta()
 
 #: Every grid axis's allowed values, from the parameter it sets.
-AXIS_BOUNDS: dict[str, dict[str, Any]] = _axis_bounds()
+AXIS_BOUNDS: dict[str, dict[str, Any]] = {
+    k: {b: v[b] for b in ("gt", "ge", "lt", "le") if b in v} for k, v in AXIS_META.items()
+}
+
+
+def _axis_items(value: Any) -> list[tuple[str, Any]]:
+    """The numbers an axis gives as written, each with where it is (for messages)."""
+    if isinstance(value, Mapping):
+        return [(f" (range {k})", value[k]) for k in ("start", "stop") if k in value]
+    if isinstance(value, (list, tuple)):
+        return [(f" (value {i})", v) for i, v in enumerate(value)]
+    return [("", value)]
 
 
 class _GridBase(StrictModel):
+    @field_validator("*", mode="before")
+    @classmethod
+    def _finite(cls, value: Any, info: ValidationInfo) -> Any:
+        # Non-finite and huge numbers are refused here with the axis's range (the number
+        # type's own refusal knows no range); finite ones are checked after parsing.
+        name = info.field_name
+        assert name is not None
+        for where, v in _axis_items(value):
+            try:
+                v = number(v)
+            except ValueError:
+                continue  # the type says what is wrong
+            if isinstance(v, (int, float)) and not math.isfinite(_float_or_inf(v)):
+                raise ValueError(f"{violation(name, v, AXIS_BOUNDS[name])}{where}")
+        return value
+
     @field_validator("*", mode="after")
     @classmethod
     def _domain(cls, value: Any, info: ValidationInfo) -> Any:
@@ -200,14 +307,27 @@ class _GridBase(StrictModel):
             return value
         name = info.field_name
         assert name is not None
+        meta = AXIS_BOUNDS[name]
+        if isinstance(value, Range):
+            # A range is checked by its ends, never built: its values lie between them.
+            for where, v in ((" (range start)", value.start), (" (range end)", value.last)):
+                problem = violation(name, v, meta)
+                if problem is not None:
+                    raise ValueError(problem + where)
+            if value.size > 1 and not _distinct(value):
+                raise ValueError(
+                    f"values must be distinct: {value.size:,} values between {value.start:g} "
+                    f"and {value.stop:g} are closer than the 12 digits coordinates keep"
+                )
+            return value
         values = axis_values(value)
         if values.size == 0:
             raise ValueError("must not be empty")
-        bad = out_of_bounds(values, AXIS_BOUNDS[name])
+        bad = out_of_bounds(values, meta)
         if np.any(bad):
             i = int(np.argmax(bad))
             where = f" (value {i})" if values.size > 1 else ""
-            raise ValueError(f"must be {bounds_text(AXIS_BOUNDS[name])}, got {values[i]:g}{where}")
+            raise ValueError(f"{violation(name, float(values[i]), meta)}{where}")
         if np.unique(values).size != values.size:
             raise ValueError("values must be distinct")
         return value
@@ -218,9 +338,28 @@ class _GridBase(StrictModel):
         return {k: getattr(self, k) for k in names if getattr(self, k) is not None}
 
 
+def _float_or_inf(v: float) -> float:
+    try:
+        return float(v)
+    except OverflowError:  # an integer beyond the float range
+        return math.inf
+
+
+def _distinct(r: Range) -> bool:
+    """Whether a range's values stay distinct once rounded to the 12 significant digits that
+    :meth:`Range.values` keeps: neighbours at least 1e-9 of the largest magnitude apart (a
+    thousand times the rounding), decided without building the values."""
+    n = r.size
+    if r.scale == "log":
+        return abs(math.log(r.stop / r.start)) / (n - 1) >= 1e-9
+    step = r.step if r.step is not None else abs(r.stop - r.start) / (n - 1)
+    return step >= 1e-9 * max(abs(r.start), abs(r.last))
+
+
 def _axis_doc(axis: str) -> str:
     info = AXES[axis]  # the one registry of axes: long name and units
-    return info.long_name if info.units == "1" else f"{info.long_name} ({info.units})"
+    base = info.long_name if info.units == "1" else f"{info.long_name} ({info.units})"
+    return _described(base + ".", AXIS_META[axis]) or base
 
 
 Grid = create_model(

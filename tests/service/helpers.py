@@ -2,14 +2,23 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
+import httpx
 import xarray as xr
+
+from service.api.server import free_port
 
 __all__ = [
     "FAST_SOLVER",
     "SLOW_SOLVER",
+    "Server",
     "TINY",
     "TINY_EULER",
     "comparable",
@@ -82,3 +91,46 @@ def write_suite(folder: Path) -> Path:
     (folder / "tiny.yaml").write_text(TINY, encoding="utf-8")
     (folder / "tiny-euler.yaml").write_text(TINY_EULER, encoding="utf-8")
     return folder
+
+
+ROOT = Path(__file__).resolve().parents[2]  # the repository
+
+
+class Server:
+    """``python -m service.cli serve`` in a subprocess."""
+
+    def __init__(self, data_dir: Path, scheduler: str, token: str | None = None,
+                 env: dict[str, str] | None = None) -> None:  # fmt: skip
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        env = {**os.environ, "IMPACTCELL_API_TOKEN": token or "", **(env or {})}
+        self.log = open(data_dir.parent / f"serve-{self.port}.log", "wb")  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1",
+             "--port", str(self.port), "--data-dir", str(data_dir), "--scheduler", scheduler,
+             "--log-level", "warning"],
+            cwd=ROOT, env=env, stdout=self.log, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        t0 = time.monotonic()
+        while True:
+            try:
+                if httpx.get(f"{self.url}/health", timeout=1).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            if self.proc.poll() is not None or time.monotonic() - t0 > 60:
+                self.stop(signal.SIGKILL)
+                raise RuntimeError(f"server did not start: {self.logtext()}")
+            time.sleep(0.1)
+
+    def logtext(self) -> str:
+        self.log.flush()
+        return Path(self.log.name).read_text(errors="replace")[-3000:]
+
+    def stop(self, sig: int = signal.SIGTERM) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(60)
+        finally:
+            self.log.close()

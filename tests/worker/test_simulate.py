@@ -138,7 +138,7 @@ def test_chunk_reports_bad_points_instead_of_raising():
         ({"method": "rk4"}, "method must be one of event, exponential, euler, got 'rk4'"),
         ({"steps_per_period": 2}, "steps_per_period must be an integer in 4"),
         ({"max_periods": 10, "window": 10}, "window must be < max_periods"),
-        ({"periodicity_tol": 0.0}, "periodicity_tol must be in"),
+        ({"periodicity_tol": 0.0}, r"periodicity_tol must be > 0, got 0.0; allowed range \(0, "),
         ({"stat_tol_db": float("nan")}, "stat_tol_db must be finite, got nan"),
         ({"extrapolate": "yes"}, "extrapolate must be true or false"),
         ({"lcp": "pgs"}, "lcp must be one of closed, lemke"),

@@ -25,8 +25,13 @@ is proven:
 ``unsettled``
     The period budget ran out first; the numbers are kept and labelled, never called irregular.
 ``failed``
-    Not finite, diverged (``base.KernelRun.failure_reason``), no steady state (undamped), or a
-    method's own reason; values are ``None``.
+    Not finite, diverged (``base.KernelRun.failure_reason``), no steady state (undamped), a
+    method's own reason, or over the point's budget (``PointLimits``: wall time or steps);
+    values are ``None``.
+
+Between batches the engine checks the point's limits and the caller's ``cancelled`` callback
+(``PointCancelled``). A batch is shortened when periods are slow, so both are seen well within
+a second.
 """
 
 from __future__ import annotations
@@ -43,7 +48,7 @@ from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittanc
 from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.linear import LinearTail
-from worker.solvers.settings import PointResult, SolverSettings
+from worker.solvers.settings import PointCancelled, PointLimits, PointResult, SolverSettings
 
 __all__ = ["DIVERGENCE_FACTOR", "MIN_WINDOWS", "mser_stats", "rre", "run_point"]
 
@@ -58,6 +63,7 @@ MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
 # windows its statistics can use: the last MIN_WINDOWS before the earliest irregular claim on.
 # Orbits are always measured (their own side run).
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
+BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
 
 # --------------------------------------------------------------------------- numerics
@@ -211,8 +217,13 @@ class _Orbit:
 
 class _Engine:
     def __init__(self, run: KernelRun, sys_: System, tail: LinearTail,
-                 settings: SolverSettings) -> None:  # fmt: skip
+                 settings: SolverSettings, limits: PointLimits,
+                 cancelled: Callable[[], bool] | None) -> None:  # fmt: skip
         self.run = run
+        self.limits = limits
+        self.cancelled = cancelled
+        self.t0 = time.perf_counter()
+        self.stride = settings.window  # periods per batch, shortened when periods are slow
         self.sys = sys_
         self.p = sys_.params
         self.tail = tail
@@ -277,9 +288,11 @@ class _Engine:
         w = s.window
         measure_from = max(2 * w, s.max_periods // 4 - MIN_WINDOWS * w)
         while self.period < s.max_periods:
-            n = min(w - self.period % w, s.max_periods - self.period)
+            n = min(w - self.period % w, s.max_periods - self.period, self.stride)
             measure = self.period >= measure_from
+            t = time.perf_counter()
             done, code, p = self.run.advance(n, measure, self.checks, self.rows, self.samples)
+            self._pace(done, time.perf_counter() - t)
             self.rows[:done, ms.M_MEASURED] = 1.0 if measure else 0.0
             self._absorb(self.rows[:done], self.samples[:done], main=True)
             if code == ms.END_LINEAR:
@@ -303,9 +316,31 @@ class _Engine:
                 self.backoff = min(2 * self.backoff, 64)
             elif code != ms.END_NONE:
                 return "failed", self.run.failure_reason(code)
+            over = self._over_budget()
+            if over:
+                return "failed", over
             if self.period % w == 0 and self.checks and self._irregular_converged():
                 return "irregular", self._coexistence_note()
         return self._at_budget()
+
+    def _pace(self, done: int, dt: float) -> None:
+        """Shorten the batches when periods are slow (limits and cancel are seen between
+        batches); batches never grow beyond a window, so fast points run as before."""
+        if dt > BATCH_S and done > 0:
+            self.stride = max(1, int(done * BATCH_S / dt))
+
+    def _over_budget(self) -> str:
+        """Why the point must stop now ("" if it may go on); raises on cancel."""
+        if self.cancelled is not None and self.cancelled():
+            raise PointCancelled(f"cancelled in period {self.period}")
+        elapsed = time.perf_counter() - self.t0
+        if elapsed > self.limits.wall_s:
+            return (f"time limit of {self.limits.wall_s:g} s per point exceeded after "
+                    f"{self.period} periods ({self.work['steps']} steps)")  # fmt: skip
+        if self.work["steps"] > self.limits.steps:
+            return (f"step budget of {self.limits.steps} steps per point exceeded after "
+                    f"{self.period} periods")  # fmt: skip
+        return ""
 
     # ------------------------------------------------------------------ outcomes
 
@@ -518,12 +553,14 @@ def _finite_or_none(v: float | None) -> float | None:
 
 
 def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
-              settings: SolverSettings, x0: np.ndarray,
-              history_periods: int = 0) -> PointResult:  # fmt: skip
+              settings: SolverSettings, x0: np.ndarray, history_periods: int = 0,
+              limits: PointLimits | None = None,
+              cancelled: Callable[[], bool] | None = None) -> PointResult:  # fmt: skip
     """Run one point to its proven end and build its result (see the module docstring).
 
     ``make_run`` prepares the method's kernel run; it is not called for a point whose start is
-    already proven to be in the linear tail (unless a history is asked for)."""
+    already proven to be in the linear tail (unless a history is asked for). ``limits`` bound
+    the point's cost; ``cancelled()`` true makes it raise :class:`PointCancelled`."""
     t0 = time.perf_counter()
     p = sys_.params
     T = 2.0 * math.pi / p.gamma_r
@@ -537,7 +574,7 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     else:
         run = make_run()
         run.reset(x0)
-        eng = _Engine(run, sys_, tail, settings)
+        eng = _Engine(run, sys_, tail, settings, limits or PointLimits(), cancelled)
         if history_periods and not settings.early_stop:
             run.keep_history(history_periods * run.history_rows_per_period())
         outcome, info = eng.run_to_end()

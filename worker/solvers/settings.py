@@ -16,6 +16,8 @@ __all__ = [
     "METHODS",
     "OUTCOMES",
     "SOLVER_VERSION",
+    "PointCancelled",
+    "PointLimits",
     "PointResult",
     "SolverSettings",
     "int_in",
@@ -35,6 +37,34 @@ OUTCOMES = ("linear", "periodic", "irregular", "unsettled", "failed")
 def int_in(name: str, value: Any, lo: int, hi: int) -> int:
     """``value`` as an int in ``lo…hi``, or a ``ValueError`` naming the field."""
     return integer(name, value, lo, hi)
+
+
+@dataclass(frozen=True)
+class PointLimits:
+    """How much one point may cost before it is given up (``failed`` with the reason).
+
+    Execution limits, not physics: they are not part of a study's definition or id. A point
+    that reaches one is reported ``failed`` ("time limit …" / "step budget …"), so one
+    pathological point can never hold a worker for longer than ``wall_s``.
+
+    Parameters
+    ----------
+    wall_s : float
+        Wall-clock seconds one point may run (checked between batches of periods; a batch is
+        shortened when periods are slow, so the limit holds to well under a second).
+    steps : int
+        Time steps (events for ``event``) one point may take.
+    """
+
+    wall_s: float = field(default=600.0, metadata={"gt": 0.0, "le": 86_400.0})
+    steps: int = field(default=10**9, metadata={"integer": True, "ge": 1, "le": 10**12})
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+class PointCancelled(Exception):
+    """The caller asked a running point to stop (its chunk's study was cancelled)."""
 
 
 @dataclass(frozen=True)

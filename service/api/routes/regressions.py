@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import datetime as dt
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, HTTPException, Path, Query, Request, Response
 from fastapi.responses import PlainTextResponse
+from pydantic import BaseModel, ConfigDict, Field
 
 from service.api.deps import CatalogueDep, JobsDep
 from service.api.nightly import NightlyBusy, NightlyRunner
@@ -55,6 +57,60 @@ def start_regression(
         reg_id = runner.start(trigger="api")
     except NightlyBusy as exc:
         raise HTTPException(409, str(exc)) from None
+    response.headers["Location"] = f"/regressions/{reg_id}"
+    rec = catalogue.get_regression(reg_id)
+    assert rec is not None
+    return rec
+
+
+class _PostedReport(BaseModel):
+    """What every nightly report has (``NightlyReport.to_json``); the rest is kept as given."""
+
+    model_config = ConfigDict(extra="allow")
+
+    ok: bool
+    summary: str = Field(max_length=10_000)
+    studies: list[dict[str, Any]]
+
+
+class RegressionReportIn(BaseModel):
+    """The report of a suite run made elsewhere, e.g. by ``impactcell nightly --url``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    report: _PostedReport
+    markdown: str = ""
+
+
+@router.post(
+    "/reports",
+    status_code=201,
+    response_model=RegressionOut,
+    responses={401: _ERRORS[401], 422: {"model": ErrorOut, "description": "not a report"}},
+)
+def record_regression(
+    body: RegressionReportIn, response: Response, catalogue: CatalogueDep
+) -> dict[str, Any]:
+    """Catalogue the report of a nightly run made through this service by a client.
+
+    ``impactcell nightly --url`` runs its suite's studies on this service and compares them
+    where it runs; it then posts its report here, so the run is listed by ``GET /regressions``
+    (``trigger`` ``client``) beside the service's own runs.
+    """
+    report = body.report.model_dump()
+    try:  # when the run started, as the report says; else now
+        started = dt.datetime.fromisoformat(str(report.get("started")))
+    except ValueError:
+        started = dt.datetime.now(dt.UTC)
+    if started.tzinfo is None:
+        started = started.replace(tzinfo=dt.UTC)
+    try:
+        reg_id = catalogue.add_finished_regression(
+            "client", started_at=started, ok=body.report.ok, summary=body.report.summary,
+            report=report, markdown=body.markdown,
+        )  # fmt: skip
+    except ValueError as exc:  # NaN or infinity in the report: JSON has no such numbers
+        raise HTTPException(422, f"report: {exc}") from None
     response.headers["Location"] = f"/regressions/{reg_id}"
     rec = catalogue.get_regression(reg_id)
     assert rec is not None

@@ -1,37 +1,38 @@
-"""Results of a study: the NetCDF file, JSON slices, bandgap maps and plots."""
+"""Results of a study: the NetCDF file, JSON/CSV slices, bandgap maps and plots (PNG/SVG)."""
 
 from __future__ import annotations
 
-import os
-import tempfile
+import hashlib
 import threading
 from collections import OrderedDict
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import xarray as xr
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, Response
-from starlette.background import BackgroundTask
 
-from service.analysis.bands import bandgap_json, bandgap_map
+from service.analysis.bands import bandgap_csv, bandgap_json, bandgap_map
 from service.analysis.selection import (
     AnalysisError,
+    default_view,
     select,
+    slice_csv,
     slice_json,
 )
 from service.api.catalogue import Catalogue
 from service.api.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.api.schemas import ErrorOut
-from service.studies.chunks import StudyStore
+from service.studies.chunks import PartialState, StudyStore, atomic_write
 from service.studies.dataset import (
     encoding,
     json_text,
+    jsonable,
     open_results,
     results_from_records,
 )
 from service.studies.schema import Study, study_from_canonical
-from service.studies.variables import FREQUENCY_AXES, MODEL_AXES, default_x
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
 
@@ -43,6 +44,9 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 # Query parameters with a meaning of their own; every other one selects a coordinate value.
 _RESERVED = {"variable", "nearest", "x", "y", "threshold_db", "hue", "periods", "format"}
 _NETCDF = "application/x-netcdf"
+_CSV = "text/csv; charset=utf-8"
+#: The most values a JSON or CSV slice (or bandgap map) holds; beyond, 422 says how to select.
+MAX_SLICE_VALUES = 100_000
 
 
 class _Cache:
@@ -70,9 +74,100 @@ class _Cache:
 _cache = _Cache()
 
 
+class _Partial:
+    """One unfinished study: the chunks read so far, the dataset and NetCDF file built from
+    them (rebuilt only when the set of chunk files changes)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.state: PartialState | None = None
+        self.key: frozenset[tuple[str, int, int, int]] | None = None
+        self.ds: xr.Dataset | None = None
+        self.nc: Path | None = None
+
+
+class _PartialCache:
+    """Partial datasets of a few studies, built incrementally from their chunk files.
+
+    A request reads only the chunk files that appeared since the previous one (one file of
+    32 points instead of every file of the study); the dataset is rebuilt only when the set of
+    files changed, and its NetCDF file is written once per set and then served as a file.
+    """
+
+    def __init__(self, size: int = 2) -> None:  # each holds every point of a study, twice
+        self._items: OrderedDict[str, _Partial] = OrderedDict()
+        self._lock = threading.Lock()
+        self._size = size
+
+    def _entry(self, store: StudyStore) -> _Partial:
+        key = str(store.folder)  # not the id alone: two data dirs may hold the same study
+        with self._lock:
+            entry = self._items.get(key)
+            if entry is None:
+                entry = self._items[key] = _Partial()
+            self._items.move_to_end(key)
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+            return entry
+
+    def get(
+        self, store: StudyStore, netcdf: bool = False
+    ) -> tuple[PartialState, xr.Dataset, Path | None]:
+        """The up-to-date state and dataset, and (``netcdf``) the dataset's NetCDF file."""
+        entry = self._entry(store)
+        with entry.lock:  # one build per study at a time; other studies are not held up
+            entry.state = state = store.update_partial(entry.state)
+            if state.key != entry.key or entry.ds is None:
+                entry.ds = results_from_records(
+                    store.study, state.cols, computed=state.filled.copy()
+                )
+                entry.key, entry.nc = state.key, None
+            if netcdf and (entry.nc is None or not entry.nc.is_file()):
+                entry.nc = _write_partial(store, entry.ds, state)
+            return state, entry.ds, entry.nc
+
+
+_partials = _PartialCache()
+_PARTIAL_FILE = "partial-{done}-{digest}.nc"
+
+
+def _write_partial(store: StudyStore, ds: xr.Dataset, state: PartialState) -> Path:
+    """Write a partial dataset next to the chunks; older partial files beyond the previous one
+    are removed (the previous may still be streaming to a client)."""
+    digest = hashlib.sha256(repr(sorted(state.key)).encode()).hexdigest()[:12]
+    path = store.folder / _PARTIAL_FILE.format(done=int(state.filled.sum()), digest=digest)
+    atomic_write(path, lambda p: ds.to_netcdf(p, engine="netcdf4", encoding=encoding(ds)))
+    older = sorted(
+        (p for p in store.folder.glob("partial-*.nc") if p != path),
+        key=lambda p: p.stat().st_mtime_ns if p.exists() else 0,
+    )
+    for stale in older[:-1]:
+        stale.unlink(missing_ok=True)
+    return path
+
+
+def _tidy_partials(store: StudyStore) -> None:
+    """Remove partial files once the results file is complete."""
+    for stale in store.folder.glob("partial-*.nc"):
+        stale.unlink(missing_ok=True)
+
+
 def study_of(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study]:
+    """The study's catalogue record and its parsed definition (404 if unknown)."""
     rec = study_or_404(catalogue, study_id)
     return rec, study_from_canonical(rec["definition"], source=f"study {study_id}")
+
+
+def _results_file(rec: dict[str, Any], store: StudyStore) -> Path | None:
+    """The complete results file, when it is the study's current data."""
+    path = store.results_path
+    if not path.is_file():
+        return None
+    if rec["status"] == "finished":
+        return path
+    # A results file of an earlier run while failed tasks are retried: the chunks are newer.
+    state, _, _ = _partials.get(store)
+    return None if state.has_retry else path
 
 
 def load_dataset(
@@ -81,19 +176,44 @@ def load_dataset(
     """The study's dataset, and its results file (``None`` when partial: from chunks only)."""
     rec, study = study_of(catalogue, study_id)
     store = StudyStore(settings.data_dir, study)
-    path = store.results_path
-    if path.is_file() and (rec["status"] == "finished" or not store.has_retry_chunks()):
+    path = _results_file(rec, store)
+    if path is not None:
         return _cache.get(path), path
-    cols, done = store.collect_partial()
-    return results_from_records(study, cols, computed=done), None
+    _, ds, _ = _partials.get(store)
+    return ds, None
 
 
 def coords_of(request: Request) -> dict[str, str]:
+    """The query parameters that select coordinate values (all but the reserved ones)."""
     return {k: v for k, v in request.query_params.items() if k not in _RESERVED}
 
 
 def json_response(payload: Any) -> Response:
+    """JSON without NaN (a NaN that slipped through is an error, never a result)."""
     return Response(json_text(payload), media_type="application/json")
+
+
+def _csv_response(text: str, filename: str) -> Response:
+    disposition = f'attachment; filename="{filename}"'
+    return Response(text, media_type=_CSV, headers={"Content-Disposition": disposition})
+
+
+def _check_size(study_id: str, what: str, dims: dict[str, int], ds: xr.Dataset) -> None:
+    """422 when a slice is over :data:`MAX_SLICE_VALUES`, saying how to select a smaller one."""
+    size = int(np.prod(list(dims.values()), dtype=np.int64)) if dims else 1
+    if size <= MAX_SLICE_VALUES:
+        return
+    shape = " × ".join(f"{d} {n:,}" for d, n in dims.items())
+    axes = ", ".join(f"{d} ({ds.sizes[d]:,} values)" for d in dims)
+    example = "&".join(f"{d}={float(ds[d].values[0])!r}" for d in list(dims)[:-1])
+    hint = f", e.g. ?{example}" if example else ""
+    raise HTTPException(
+        422,
+        f"{what} would hold {size:,} values ({shape}), over the limit of "
+        f"{MAX_SLICE_VALUES:,}; select coordinate values to make it smaller{hint} (axes: "
+        f"{axes}; add nearest=true for the closest value), or download everything as NetCDF "
+        f"from /studies/{study_id}/dataset",
+    )
 
 
 @router.get(
@@ -105,23 +225,32 @@ def json_response(payload: Any) -> Response:
     response_class=Response,
 )
 def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -> Response:
-    """The results as NetCDF; for unfinished studies, from finished chunks (``partial = 1``)."""
-    ds, path = load_dataset(settings, catalogue, study_id)
+    """The results as NetCDF; for unfinished studies, from finished chunks (``partial = 1``).
+
+    Both are streamed from a file: the finished results file as it is, a partial dataset from
+    a file built once per set of finished chunks (reading only chunks new since the last).
+    """
+    rec, study = study_of(catalogue, study_id)
+    store = StudyStore(settings.data_dir, study)
+    path = _results_file(rec, store)
     partial = path is None
+    if path is None:
+        _, _, path = _partials.get(store, netcdf=True)
+        assert path is not None  # netcdf=True always writes it
+    else:
+        _tidy_partials(store)
     headers = {"X-Impactcell-Partial": "1" if partial else "0"}
     name = f"{study_id}{'-partial' if partial else ''}.nc"
-    if path is not None:
-        return FileResponse(path, media_type=_NETCDF, filename=name, headers=headers)
-    fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-partial-")
-    os.close(fd)
-    ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding(ds))
-    return FileResponse(
-        tmp, media_type=_NETCDF, filename=name, headers=headers,
-        background=BackgroundTask(os.unlink, tmp),
-    )  # fmt: skip
+    return FileResponse(path, media_type=_NETCDF, filename=name, headers=headers)
 
 
-@router.get("/data", responses=_ERRORS)
+@router.get(
+    "/data",
+    responses={
+        **_ERRORS,
+        200: {"content": {"application/json": {}, _CSV: {}}, "description": "the slice"},
+    },
+)
 def data(
     request: Request,
     study_id: StudyId,
@@ -129,50 +258,82 @@ def data(
     catalogue: CatalogueDep,
     variable: Annotated[str, Query(max_length=64)] = "transmittance_db",
     nearest: bool = False,
+    format: Literal["json", "csv"] = "json",  # noqa: A002 - the query parameter's name
 ) -> Response:
-    """A JSON slice of one variable; other query parameters select coordinate values."""
+    """A slice of one variable (JSON, or CSV in long form); other query parameters select
+    coordinate values. A slice over 100,000 values is refused (422) with how to select."""
     ds, path = load_dataset(settings, catalogue, study_id)
     try:
         da = select(ds, variable, coords_of(request), nearest=nearest)
-        out = slice_json(da)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    out["partial"] = path is None
-    return json_response(out)
-
-
-@router.get("/bandgap", responses=_ERRORS)
-def bandgap(
-    request: Request,
-    study_id: StudyId,
-    settings: SettingsDep,
-    catalogue: CatalogueDep,
-    x: Annotated[str, Query(max_length=64)] = "gamma_r",
-    y: Annotated[str | None, Query(max_length=64)] = None,
-    threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
-    nearest: bool = False,
-) -> Response:
-    """The bandgap map: Γ over x × y, where Γ < threshold, and the band edges in x per y."""
-    ds, path = load_dataset(settings, catalogue, study_id)
-    try:
-        m = bandgap_map(ds, x, y, threshold_db=threshold_db, sel=coords_of(request),
-                        nearest=nearest)  # fmt: skip
-        out = bandgap_json(m)
-    except AnalysisError as exc:
-        raise HTTPException(422, str(exc)) from None
+    _check_size(study_id, f"the slice of {variable}", {str(d): n for d, n in da.sizes.items()},
+                ds)  # fmt: skip
+    if format == "csv":
+        return _csv_response(slice_csv(da), f"{study_id}-{variable}.csv")
+    out = slice_json(da)
     out["partial"] = path is None
     return json_response(out)
 
 
 @router.get(
-    "/plots/{kind}.png",
-    responses={**_ERRORS, 200: {"content": {"image/png": {}}, "description": "a PNG figure"}},
+    "/bandgap",
+    responses={
+        **_ERRORS,
+        200: {"content": {"application/json": {}, _CSV: {}}, "description": "map or edges"},
+    },
+)
+def bandgap(
+    request: Request,
+    study_id: StudyId,
+    settings: SettingsDep,
+    catalogue: CatalogueDep,
+    x: Annotated[str | None, Query(max_length=64)] = None,
+    y: Annotated[str | None, Query(max_length=64)] = None,
+    threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
+    nearest: bool = False,
+    format: Literal["json", "csv"] = "json",  # noqa: A002 - the query parameter's name
+) -> Response:
+    """The bandgap map: Γ over x × y, where Γ < threshold, and the band edges in x per y.
+
+    Without ``x`` and ``y`` the axes are those of the bandgap plot (x the frequency axis, y
+    the first other varying axis with few values); every other varying axis not selected is
+    fixed at its first value and listed in ``slice`` (``default: true``). ``format=csv``
+    gives the band edges, one row per band.
+    """
+    ds, path = load_dataset(settings, catalogue, study_id)
+    try:
+        view = default_view(ds, "transmittance_db", x, y, coords_of(request))
+        sizes = {a: ds.sizes[a] for a in (view.y, view.x) if a is not None and a in ds.sizes}
+        _check_size(study_id, "the bandgap map", sizes, ds)
+        m = bandgap_map(ds, view.x, view.y, threshold_db=threshold_db, sel=view.sel,
+                        nearest=nearest)  # fmt: skip
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
+    if format == "csv":
+        return _csv_response(bandgap_csv(m), f"{study_id}-bands.csv")
+    out = bandgap_json(m, fixed=view.fixed)
+    out["study_id"] = study_id
+    out["partial"] = path is None
+    return json_response(out)
+
+
+@router.get(
+    "/plots/{kind}.{fmt}",
+    responses={
+        **_ERRORS,
+        200: {
+            "content": {"image/png": {}, "image/svg+xml": {}},
+            "description": "a PNG or SVG figure",
+        },
+    },
     response_class=Response,
 )
 def plot(
     request: Request,
     study_id: StudyId,
     kind: Literal["transmittance", "bandgap", "effective-mass"],
+    fmt: Literal["png", "svg"],
     settings: SettingsDep,
     catalogue: CatalogueDep,
     x: Annotated[str | None, Query(max_length=64)] = None,
@@ -181,32 +342,32 @@ def plot(
     threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
     nearest: bool = False,
 ) -> Response:
-    """A figure: transmittance (Fig. 5a style), bandgap map, or effective mass (Fig. 6)."""
+    """A figure, PNG or SVG: transmittance (Fig. 5a style), bandgap map, or effective mass
+    (Fig. 6). Needs no parameters: x defaults to the frequency axis, the hue (transmittance)
+    or y (bandgap) to the first other varying axis with few values, and every other varying
+    axis is fixed at its first value, named in the title and the ``X-Impactcell-Fixed``
+    header (JSON)."""
     from service.analysis import plots
 
     ds, _path = load_dataset(settings, catalogue, study_id)
     sel = coords_of(request)
-    xdim = x or default_x(ds.dims) or FREQUENCY_AXES[0]
     try:
         if kind == "transmittance":
-            png = plots.transmittance_png(ds, sel, x=xdim, hue=hue, nearest=nearest)
+            v = default_view(ds, "transmittance_db", x, hue, sel)
+            image = plots.transmittance_png(ds, v.sel, x=v.x, hue=v.y, nearest=nearest,
+                                            fixed=v.fixed, fmt=fmt)  # fmt: skip
         elif kind == "effective-mass":
-            png = plots.effective_mass_png(ds, sel, x=xdim, nearest=nearest)
+            v = default_view(ds, "theta_eff", x, None, sel, auto_y=False)
+            image = plots.effective_mass_png(ds, v.sel, x=v.x, nearest=nearest, fixed=v.fixed,
+                                             fmt=fmt)  # fmt: skip
         else:
-            ydim = y or _default_y(ds, xdim)
-            m = bandgap_map(ds, xdim, ydim, threshold_db=threshold_db, sel=sel, nearest=nearest)
-            png = plots.bandgap_png(m)
+            v = default_view(ds, "transmittance_db", x, y, sel)
+            m = bandgap_map(ds, v.x, v.y, threshold_db=threshold_db, sel=v.sel, nearest=nearest)
+            image = plots.bandgap_png(m, fixed=v.fixed, fmt=fmt)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    return Response(png, media_type="image/png")
+    fixed = json_text({"x": v.x, "y": v.y, "fixed": {k: jsonable(f) for k, f in v.fixed.items()}})
+    return Response(image, media_type=plots.FORMATS[fmt], headers={"X-Impactcell-Fixed": fixed})
 
 
-def _default_y(ds: xr.Dataset, x: str) -> str | None:
-    for name in MODEL_AXES:
-        if name != x and name in ds.dims and ds.sizes[name] > 1:
-            return name
-    others = [d for d in ds.dims if d != x and d != "stop" and ds.sizes[d] > 1]
-    return str(others[0]) if others else None
-
-
-__all__ = ["coords_of", "json_response", "load_dataset", "router", "study_of"]
+__all__ = ["MAX_SLICE_VALUES", "coords_of", "json_response", "load_dataset", "router", "study_of"]

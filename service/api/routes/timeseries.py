@@ -1,25 +1,33 @@
-"""``/studies/{id}/timeseries``: one point recomputed with its time histories (never stored)."""
+"""``/studies/{id}/timeseries``: one point recomputed with its time histories (never stored).
+
+The recomputation runs on the service's dask cluster (never in the API process: it would hold
+its GIL), within ``Settings.timeseries_time_limit_s``; answers are kept in a small cache, so
+asking again for the same point is free.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 import tempfile
+import threading
+from collections import OrderedDict
+from dataclasses import asdict
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 import xarray as xr
 from fastapi import APIRouter, HTTPException, Query, Request
-from fastapi.responses import FileResponse, Response
-from starlette.background import BackgroundTask
+from fastapi.responses import Response
 
 from service.analysis.selection import AnalysisError, coordinate_index, values_text
-from service.api.deps import CatalogueDep, StudyId
+from service.api.deps import CatalogueDep, JobsDep, SettingsDep, StudyId
 from service.api.routes.results import coords_of, json_response, study_of
 from service.api.schemas import ErrorOut
 from service.studies.dataset import FILL_FLOAT, jsonable
 from service.studies.schema import Study
-from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS
+from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS, PointLimits, point_history
 
 __all__ = ["router"]
 
@@ -32,6 +40,37 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 }
 _NETCDF = "application/x-netcdf"
 _MAX_HISTORY_PERIODS = 50
+_CACHE_BYTES = 64 << 20  # answers kept (they are small: at most 50 periods of one point)
+
+
+class _Answers:
+    """Finished answers by (study, point, periods, format): an LRU bounded in bytes."""
+
+    def __init__(self, limit: int) -> None:
+        self._items: OrderedDict[tuple[str, int, int, str], Response] = OrderedDict()
+        self._size = 0
+        self._limit = limit
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple[str, int, int, str]) -> Response | None:
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None:
+                self._items.move_to_end(key)
+            return hit
+
+    def put(self, key: tuple[str, int, int, str], resp: Response) -> None:
+        with self._lock:
+            if key in self._items:
+                return
+            self._items[key] = resp
+            self._size += len(resp.body)
+            while self._size > self._limit and self._items:
+                _, old = self._items.popitem(last=False)
+                self._size -= len(old.body)
+
+
+_answers = _Answers(_CACHE_BYTES)
 
 
 @router.get(
@@ -45,25 +84,51 @@ def timeseries(
     request: Request,
     study_id: StudyId,
     catalogue: CatalogueDep,
+    settings: SettingsDep,
+    jobs: JobsDep,
     periods: Annotated[int, Query(ge=1, le=_MAX_HISTORY_PERIODS)] = 5,
     format: Literal["json", "netcdf"] = "json",  # noqa: A002 - the query parameter's name
     nearest: bool = False,
 ) -> Response:
-    """Recompute one point with time histories on (never stored); select it by coordinates."""
-    from worker.model import CellParams
-    from worker.simulate import POINT_KEYS, simulate_point
+    """Recompute one point with time histories on (never stored); select it by coordinates.
 
+    Runs on the cluster within the service's time limit for it; a point over the limit is a
+    422 saying so. Repeated requests are answered from a cache."""
     _, study = study_of(catalogue, study_id)
     try:
         index, coords = _point_index(study, coords_of(request), nearest)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
+    key = (study_id, index, periods, format)
+    hit = _answers.get(key)
+    if hit is not None:
+        return hit
     pt = study.points(index, index + 1)[0]
+    limit = settings.timeseries_time_limit_s
+    args = (pt, study.solver.settings().__dict__.copy(), periods,
+            asdict(PointLimits(wall_s=limit, steps=settings.point_step_limit)))  # fmt: skip
     try:
-        params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
-        r = simulate_point(params, study.solver.settings(), history_periods=periods)
+        if jobs.running:  # on the cluster: the API process never holds its GIL for a point
+            r = jobs.compute(point_history, *args, method=study.solver.method,
+                             timeout=limit + 30.0)  # fmt: skip
+        else:  # no runner (the API's own tests): in this request's worker thread
+            r = point_history(*args)
     except ValueError as exc:
         raise HTTPException(422, f"point {coords} cannot be simulated: {exc}") from None
+    except TimeoutError:
+        raise HTTPException(
+            503, f"the cluster did not answer within {limit + 30:g} s; try again later"
+        ) from None
+    if r.outcome == "failed":
+        raise HTTPException(422, f"point {coords} cannot be simulated: {r.reason}")
+    resp = _answer(study_id, coords, periods, format, r)
+    _answers.put(key, resp)
+    return resp
+
+
+def _answer(study_id: str, coords: dict[str, float], periods: int, format: str,  # noqa: A002
+            r: Any) -> Response:  # fmt: skip
+    """The response for a recomputed point (JSON, or NetCDF bytes)."""
     hist = r.history or {}
     result = {k: jsonable(v) for k, v in r.as_dict().items()}
     if format == "netcdf":
@@ -135,6 +200,10 @@ def _history_netcdf(
     )
     fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-ts-")
     os.close(fd)
-    ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)
-    return FileResponse(tmp, media_type=_NETCDF, filename=f"{study_id}-timeseries.nc",
-                        background=BackgroundTask(os.unlink, tmp))  # fmt: skip
+    try:
+        ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)
+        body = Path(tmp).read_bytes()  # small (≤ 50 periods of one point): cached as bytes
+    finally:
+        os.unlink(tmp)
+    disposition = f'attachment; filename="{study_id}-timeseries.nc"'
+    return Response(body, media_type=_NETCDF, headers={"content-disposition": disposition})

@@ -266,21 +266,23 @@ def test_run_matches_runner_and_results_routes(make_app: Any, tmp_path: Path) ->
         png = app.client.plot(sid, "transmittance", hue="gap")
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
         gr = float(ds.gamma_r[3])
-        ts = app.client.timeseries(sid, gamma_r=gr, gap=0.1, periods=2)
-        tau = np.array(ts["series"]["tau"])
+        ts = app.client.timeseries(sid, gamma_r=gr, gap=0.1, periods=2)  # an xarray Dataset
+        tau = ts["time"].values
         # Every grid point of the 2 recorded periods (256 a period), plus the events.
         assert len(tau) >= 2 * 256 and np.all(np.diff(tau) >= 0)
         assert 0 <= tau[0] < 2 * np.pi / gr and tau[-1] == pytest.approx(2 * 2 * np.pi / gr)
-        assert {len(v) for v in ts["series"].values()} == {len(tau)}
-        assert {"s", "w_tip", "s_b", "theta_eff", "impulse1", "kind"} <= set(ts["series"])
-        assert ts["result"]["method"] == "event" and "state" not in ts["series"]
-        events = ts["events"]  # the event solver's log, column by column
-        assert set(events) == {"tau", "kind", "stop", "residual", "impulse"}
-        assert set(events["kind"]) <= {1, 2} and set(events["stop"]) <= {1, 2}
-        assert ts["result"]["transmittance_db"] == pytest.approx(
+        assert {"s", "w_tip", "s_b", "theta_eff", "impulse1", "kind"} <= set(ts.data_vars)
+        assert all(ts[k].dims == ("time",) for k in ("s", "w_tip", "kind"))
+        result = json.loads(ts.attrs["result"])
+        assert result["method"] == "event" and "state" not in ts
+        # the event solver's log, column by column
+        events = {k[len("event_") :] for k in ts.data_vars if k.startswith("event_")}
+        assert events == {"tau", "kind", "stop", "residual", "impulse"}
+        assert set(ts["event_kind"].values) <= {1, 2} and set(ts["event_stop"].values) <= {1, 2}
+        assert result["transmittance_db"] == pytest.approx(
             float(ds["transmittance_db"].sel(gap=0.1).isel(gamma_r=3)), abs=1e-9
         )
-        assert ts["result"]["outcome"] == str(outcome_names(ds["outcome"].sel(gap=0.1))[3])
+        assert result["outcome"] == str(outcome_names(ds["outcome"].sel(gap=0.1))[3])
         r = app.http.get(f"/studies/{sid}/timeseries",
                          params={"gamma_r": gr, "gap": 0.1, "format": "netcdf",
                                  "periods": 1})  # fmt: skip
@@ -289,8 +291,8 @@ def test_run_matches_runner_and_results_routes(make_app: Any, tmp_path: Path) ->
         nc.write_bytes(r.content)
         with xr.open_dataset(nc) as h:
             assert h["kind"].dtype.kind == "i" and h["s"].sizes["time"] == h.sizes["time"] > 256
-            assert h["event_tau"].dims == ("event",) and 0 < h.sizes["event"] <= len(events["tau"])
-            assert json.loads(h.attrs["result"])["outcome"] == ts["result"]["outcome"]
+            assert h["event_tau"].dims == ("event",) and 0 < h.sizes["event"] <= ts.sizes["event"]
+            assert json.loads(h.attrs["result"])["outcome"] == result["outcome"]
         counts = {k: int((outcome_names(ds["outcome"]) == k).sum()) for k in OUTCOMES}
         assert rec["points_irregular"] == counts["irregular"]
         assert rec["points_unsettled"] == counts["unsettled"]
@@ -333,13 +335,16 @@ def test_restart_resumes_interrupted_study(tmp_path: Path, catalogue_url: str,
         while app.client.get(sid)["points_done"] < 40:
             assert time.monotonic() - t0 < 120
             time.sleep(0.05)
+        wall_before = app.client.get(sid)["wall_s"]
     # The service stopped mid-study: finished chunks kept, the study left to resume.
     done_before = int(store.done_mask().sum())
     assert 0 < done_before < 480
     with App(s, run_jobs=True) as app:
-        assert app.client.get(sid)["status"] in ("queued", "running")
+        rec = app.client.get(sid)
+        assert rec["status"] in ("queued", "running")
+        assert rec["wall_s"] >= wall_before > 0  # running time carries over the restart
         rec = _wait(app.client, sid)
-        assert rec["points_done"] == 480
+        assert rec["points_done"] == 480 and rec["wall_s"] > wall_before
         ds = app.client.dataset(sid)
     ref = run_study(study, tmp_path / "ref", serial=True)
     xr.testing.assert_identical(comparable(ds), comparable(open_results(ref.path)))

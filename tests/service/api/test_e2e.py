@@ -4,10 +4,7 @@ client over HTTP, a real dask cluster, real NetCDF files; and a restart after SI
 from __future__ import annotations
 
 import json
-import os
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,57 +14,15 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from service.api.server import free_port
 from service.client import Client
 from service.studies.chunks import StudyStore
 from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
-from tests.service.helpers import SLOW_SOLVER, comparable, tiny_study
+from tests.service.helpers import SLOW_SOLVER, Server, comparable, tiny_study
 
 # real `impactcell serve` processes and whole studies: the slow tier
 pytestmark = pytest.mark.slow
-
-ROOT = Path(__file__).resolve().parents[3]
-
-
-class Server:
-    """``python -m service.cli serve`` in a subprocess."""
-
-    def __init__(self, data_dir: Path, scheduler: str, token: str | None = None) -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        env = {**os.environ, "IMPACTCELL_API_TOKEN": token or ""}
-        self.log = open(data_dir.parent / f"serve-{self.port}.log", "wb")  # noqa: SIM115
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1",
-             "--port", str(self.port), "--data-dir", str(data_dir), "--scheduler", scheduler,
-             "--log-level", "warning"],
-            cwd=ROOT, env=env, stdout=self.log, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-        t0 = time.monotonic()
-        while True:
-            try:
-                if httpx.get(f"{self.url}/health", timeout=1).status_code == 200:
-                    return
-            except httpx.HTTPError:
-                pass
-            if self.proc.poll() is not None or time.monotonic() - t0 > 60:
-                self.stop(signal.SIGKILL)
-                raise RuntimeError(f"server did not start: {self.logtext()}")
-            time.sleep(0.1)
-
-    def logtext(self) -> str:
-        self.log.flush()
-        return Path(self.log.name).read_text(errors="replace")[-3000:]
-
-    def stop(self, sig: int = signal.SIGTERM) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        try:
-            return self.proc.wait(60)
-        finally:
-            self.log.close()
 
 
 @pytest.fixture
@@ -106,10 +61,10 @@ def test_submit_wait_dataset_bandgap_plot_timeseries(server: Server, tmp_path: P
         assert w >= 600 and h >= 400
 
         g = float(ds.gamma_r[5])
-        ts = c.timeseries(rec["id"], gamma_r=g, gap=0.1, periods=3)
-        assert len(ts["series"]["s"]) >= 3 * 256  # every grid point, plus the events
-        assert ts["series"]["tau"][-1] == pytest.approx(3 * 2 * np.pi / g)
-        assert ts["result"]["transmittance_db"] == pytest.approx(
+        ts = c.timeseries(rec["id"], gamma_r=g, gap=0.1, periods=3)  # an xarray Dataset
+        assert ts.sizes["time"] >= 3 * 256  # every grid point, plus the events
+        assert float(ts["time"][-1]) == pytest.approx(3 * 2 * np.pi / g)
+        assert json.loads(ts.attrs["result"])["transmittance_db"] == pytest.approx(
             float(ds["transmittance_db"].sel(gap=0.1, gamma_r=g)), abs=1e-9
         )
         assert c.health()["studies"]["finished"] == 1

@@ -7,6 +7,8 @@ others drive :class:`~service.api.nightly.NightlyRunner` with a stand-in job que
 
 from __future__ import annotations
 
+import shutil
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -22,13 +24,14 @@ from fastapi.testclient import TestClient
 from service.api.app import create_app
 from service.api.catalogue import Catalogue
 from service.api.nightly import NightlyBusy, NightlyRunner
+from service.api.schedule import record_run
 from service.api.server import ServerThread
 from service.api.settings import Settings
 from service.client import Client, Conflict
 from service.regression.run import run_suite
-from service.regression.suite import load_suite
+from service.regression.suite import SuiteError, load_suite
 from service.studies.schema import Study
-from tests.service.helpers import SLOW_SOLVER, tiny_study, write_suite
+from tests.service.helpers import SLOW_SOLVER, Server, tiny_study, write_suite
 
 TOKEN = "n1ght"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -94,7 +97,7 @@ def test_nightly_runs_through_the_service_queue_on_its_own_cluster(
             assert "# Nightly regression: PASSED" in rec["markdown"]
 
             # The suite's studies are the queue's: listed with their names, each tagged.
-            listed = {r["id"]: r for r in c.list()}
+            listed = {r["id"]: r for r in c.list(full=True)}
             ids = {x["study_id"] for x in report["studies"]}
             assert ids <= set(listed)
             assert {listed[i]["name"] for i in ids} == {"tiny", "tiny-euler"}
@@ -120,6 +123,9 @@ def test_a_cancelled_nightly_study_fails_the_report(tmp_path: Path, dask_address
     suite.mkdir()
     slow = tiny_study(name="nightly-slow", num=150, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)
     (suite / "slow.yaml").write_text(yaml.safe_dump(slow), encoding="utf-8")
+    # A run needs every baseline before it starts; this one is never read (cancelled first).
+    (tmp_path / "baselines").mkdir()
+    (tmp_path / "baselines" / "slow.nc").write_bytes(b"")
     s = Settings(host="127.0.0.1", port=0, data_dir=tmp_path / "data", scheduler=dask_address,
                  api_token=TOKEN, nightly_dir=suite)  # fmt: skip
     server = ServerThread(s).start()
@@ -127,7 +133,7 @@ def test_a_cancelled_nightly_study_fails_the_report(tmp_path: Path, dask_address
         with Client(server.url, token=TOKEN) as c:
             reg = c.run_nightly()
             t0 = time.monotonic()
-            while not (mine := c.list(name="nightly-slow")):
+            while not (mine := c.list(name="nightly-slow", full=True)):
                 assert time.monotonic() - t0 < 30
                 time.sleep(0.05)
             assert mine[0]["definition"]["tag"].startswith("nightly-")
@@ -268,3 +274,70 @@ def test_the_cron_schedule_runs_the_services_runner(tmp_path: Path) -> None:
         # Without a runner thread no study would run: the API says so instead of queueing.
         r = tc.post("/regressions")
         assert r.status_code == 503 and "job runner is not running" in r.json()["detail"]
+
+
+def test_missing_baselines_fail_the_run_before_any_study_is_queued(
+    made: Path, tmp_path: Path, catalogue: Catalogue
+) -> None:
+    shutil.copytree(made / "nightly", tmp_path / "nightly")
+    (tmp_path / "baselines").mkdir()
+    shutil.copy(made / "baselines" / "tiny.nc", tmp_path / "baselines")  # not tiny-euler's
+    s = Settings(data_dir=tmp_path / "data", nightly_dir=tmp_path / "nightly")
+    jobs = FakeJobs(catalogue, "finished")
+    runner = NightlyRunner(s, catalogue, jobs, poll=0.01)  # type: ignore[arg-type]
+    with pytest.raises(SuiteError, match=r"no baseline in .* for tiny-euler\.nc"):
+        runner.run()
+    assert jobs.submitted == []  # refused before anything was queued
+    reg_id = catalogue.add_regression("cron")
+    record_run(catalogue, reg_id, runner.run)  # what the schedule stores
+    rec = catalogue.get_regression(reg_id)
+    assert rec["ok"] is False and "tiny-euler.nc" in rec["error"]
+    assert jobs.submitted == []
+
+
+def test_the_service_markdown_report_shows_no_server_paths(
+    made: Path, tmp_path: Path, catalogue: Catalogue
+) -> None:
+    s = Settings(data_dir=tmp_path / "data", nightly_dir=made / "nightly")
+    jobs = FakeJobs(catalogue, "cancelled")
+    out = NightlyRunner(s, catalogue, jobs, poll=0.01).run()  # type: ignore[arg-type]
+    md = out["markdown"]
+    assert "Suite `nightly`, baselines `baselines`" in md
+    assert str(made) not in md and str(tmp_path) not in md
+    assert out["report"]["suite"] == str(made / "nightly")  # the JSON keeps the real paths
+
+
+@pytest.mark.slow
+def test_a_run_killed_with_its_service_is_marked_interrupted_on_restart(
+    tmp_path: Path, dask_address: str
+) -> None:
+    suite = tmp_path / "nightly"
+    suite.mkdir()
+    slow = tiny_study(name="nightly-slow", num=150, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)
+    (suite / "slow.yaml").write_text(yaml.safe_dump(slow), encoding="utf-8")
+    (tmp_path / "baselines").mkdir()
+    (tmp_path / "baselines" / "slow.nc").write_bytes(b"")  # never read: the run is killed
+    data = tmp_path / "data"
+    env = {"IMPACTCELL_NIGHTLY_DIR": str(suite)}
+    first = Server(data, dask_address, token=TOKEN, env=env)
+    try:
+        r = httpx.post(f"{first.url}/regressions", headers=AUTH)
+        assert r.status_code == 202, r.text
+        reg_id = r.json()["id"]
+        t0 = time.monotonic()
+        while not httpx.get(f"{first.url}/studies", params={"name": "nightly-slow"},
+                            headers=AUTH).json()["items"]:  # fmt: skip
+            assert time.monotonic() - t0 < 30
+            time.sleep(0.05)
+    finally:
+        first.stop(signal.SIGKILL)  # as a crash: the run's row is left without an outcome
+    second = Server(data, dask_address, token=TOKEN, env=env)
+    try:
+        rec = httpx.get(f"{second.url}/regressions/{reg_id}", headers=AUTH).json()
+        assert rec["ok"] is False and rec["finished_at"] is not None, rec
+        assert rec["summary"].startswith("interrupted")
+        assert "is gone" in rec["error"]  # its process, on this host, no longer exists
+        health = httpx.get(f"{second.url}/health").json()
+        assert health["nightly"]["id"] == reg_id and health["nightly"]["ok"] is False
+    finally:
+        second.stop()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import datetime as dt
+import os
+import socket
 import threading
 import time
 from pathlib import Path
@@ -13,7 +15,16 @@ from fastapi.testclient import TestClient
 
 from service.api.app import create_app
 from service.api.catalogue import Catalogue
-from service.api.schedule import NightlyScheduler, next_slot, run_nightly_once
+from service.api.schedule import (
+    PROCESS_HOLDER,
+    RUN_LEASE_GRACE_S,
+    NightlyScheduler,
+    next_slot,
+    record_run,
+    recover_interrupted,
+    run_lease,
+    run_nightly_once,
+)
 from service.api.settings import Settings
 
 UTC = dt.UTC
@@ -123,3 +134,120 @@ def test_regression_routes_and_health(tmp_path: Path, catalogue_url: str) -> Non
         assert tc.get("/regressions/999", headers=h).status_code == 404
         health = tc.get("/health").json()
         assert health["nightly"]["id"] == rid and health["nightly"]["ok"] is False
+
+
+# --------------------------------------------------------------------------- interrupted runs
+
+
+def _ago(seconds: float) -> dt.datetime:
+    return dt.datetime.now(UTC) - dt.timedelta(seconds=seconds)
+
+
+def test_a_run_whose_process_died_is_marked_interrupted(catalogue_url: str) -> None:
+    cat = Catalogue(catalogue_url)
+    try:
+        orphan = cat.add_regression("cron")  # its process died before it took its lease
+        dead = cat.add_regression("api")  # held by an earlier process with this pid
+        cat.acquire_lease(run_lease(dead), f"{socket.gethostname()}:{os.getpid()}:0ld0ld00", 120)
+        elsewhere = cat.add_regression("cron")  # alive, as far as anyone can tell
+        cat.acquire_lease(run_lease(elsewhere), "other-host:1:abcdef12", 120)
+
+        ended, again = recover_interrupted(cat)
+        assert ended == [dead]  # the orphan is within its grace period, elsewhere is alive
+        assert again is not None and again > dt.datetime.now(UTC)
+        rec = cat.get_regression(dead)
+        assert rec["ok"] is False and rec["finished_at"] is not None
+        assert rec["summary"].startswith("interrupted")
+        assert "interrupted" in rec["error"] and "0ld0ld00" in rec["error"]
+        assert rec["markdown"].startswith("# Nightly regression: INTERRUPTED")
+
+        later = dt.datetime.now(UTC) + dt.timedelta(seconds=RUN_LEASE_GRACE_S + 1)
+        ended, again = recover_interrupted(cat, now=later)
+        assert ended == [orphan]  # past its grace; elsewhere's lease still runs (120 s)
+        assert cat.get_regression(elsewhere)["ok"] is None
+        expired = dt.datetime.now(UTC) + dt.timedelta(seconds=121)
+        assert recover_interrupted(cat, now=expired) == ([elsewhere], None)
+        assert "stopped renewing" in cat.get_regression(elsewhere)["error"]
+        assert cat.unfinished_regressions() == []
+        latest = cat.latest_regression()
+        assert latest["id"] == elsewhere and latest["ok"] is False
+    finally:
+        cat.close()
+
+
+def test_a_run_in_progress_is_never_taken_for_interrupted(
+    catalogue_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import service.api.schedule as schedule
+
+    monkeypatch.setattr(schedule, "RUN_LEASE_TTL_S", 0.3)  # beats every 0.1 s
+    cat = Catalogue(catalogue_url)
+    release = threading.Event()
+    reg_id = cat.add_regression("api")
+
+    def run() -> dict[str, Any]:
+        release.wait(10)
+        return {"ok": True, "report": {"summary": "fine"}, "markdown": "# ok"}
+
+    t = threading.Thread(target=record_run, args=(cat, reg_id, run))
+    t.start()
+    try:
+        time.sleep(0.2)
+        first = cat.lease(run_lease(reg_id))
+        assert first is not None and first["holder"] == PROCESS_HOLDER
+        time.sleep(0.5)  # longer than the lease's life: only the heartbeat keeps it
+        assert recover_interrupted(cat)[0] == []
+        second = cat.lease(run_lease(reg_id))
+        assert second is not None and second["expires_at"] > first["expires_at"]
+    finally:
+        release.set()
+        t.join(10)
+    rec = cat.get_regression(reg_id)
+    assert rec["ok"] is True and rec["summary"] == "fine"
+    assert cat.lease(run_lease(reg_id)) is None  # given back when the run ended
+    cat.close()
+
+
+def test_service_start_marks_runs_left_by_a_dead_process(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path / "d", api_token="t")
+    s.data_dir.mkdir()
+    cat = Catalogue(s.catalogue_url())
+    reg_id = cat.add_regression("cron")  # as a killed process leaves it: ok null, its lease
+    cat.acquire_lease(run_lease(reg_id), f"{socket.gethostname()}:{os.getpid()}:deadbeef", 120)
+    cat.close()
+    with TestClient(create_app(s, run_jobs=False)) as tc:
+        h = {"Authorization": "Bearer t"}
+        (item,) = tc.get("/regressions", headers=h).json()["items"]
+        assert item["id"] == reg_id and item["ok"] is False
+        assert item["summary"].startswith("interrupted") and item["finished_at"]
+        md = tc.get(f"/regressions/{reg_id}", params={"format": "markdown"}, headers=h).text
+        assert "INTERRUPTED" in md
+        assert tc.get("/health").json()["nightly"]["summary"].startswith("interrupted")
+
+
+# --------------------------------------------------------------------------- a client's report
+
+
+def test_a_clients_report_is_catalogued(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path / "d", api_token="t")
+    h = {"Authorization": "Bearer t"}
+    report = {"ok": False, "summary": "2 studies, 10 points: 1 not ok: tiny failed",
+              "started": "2026-11-22T02:00:00+00:00", "studies": [{"study": "tiny"}]}  # fmt: skip
+    with TestClient(create_app(s, run_jobs=False)) as tc:
+        body = {"report": report, "markdown": "# Nightly regression: FAILED\n"}
+        assert tc.post("/regressions/reports", json=body).status_code == 401
+        r = tc.post("/regressions/reports", json=body, headers=h)
+        assert r.status_code == 201, r.text
+        rec = r.json()
+        assert r.headers["location"] == f"/regressions/{rec['id']}"
+        assert rec["trigger"] == "client" and rec["ok"] is False
+        assert rec["summary"] == report["summary"]
+        assert rec["started_at"].startswith("2026-11-22T02:00:00") and rec["finished_at"]
+        assert [x["id"] for x in tc.get("/regressions", headers=h).json()["items"]] == [rec["id"]]
+        full = tc.get(f"/regressions/{rec['id']}", headers=h).json()
+        assert full["report"] == report and full["markdown"] == body["markdown"]
+        for bad in ({"report": {"summary": "x"}}, {"report": report, "extra": 1},
+                    {"report": {**report, "ok": "perhaps"}}):  # fmt: skip
+            r = tc.post("/regressions/reports", json=bad, headers=h)
+            assert r.status_code == 422, (bad, r.text)
+        assert tc.get("/regressions", headers=h).json()["total"] == 1

@@ -73,8 +73,10 @@ def test_demo_writes_map_and_dataset(tmp_path: Path, capsys) -> None:
     ds = xr.open_dataset(out / "demo-small.nc")
     assert ds.sizes["gamma_r"] == 10 and ds.sizes["gap"] == 2
     ds.close()
-    edges = json.loads((out / "bandgap.json").read_text())
-    assert [e["y"] for e in edges] == [0.1, 0.5]
+    doc = json.loads((out / "bandgap.json").read_text())  # self-describing
+    assert [e["y"] for e in doc["edges"]] == [0.1, 0.5]
+    assert doc["variable"]["name"] == "transmittance_db" and doc["threshold"]["value"] == 0.0
+    assert (doc["x"], doc["y"]) == ("gamma_r", "gap") and doc["axes"]["y"] is not None
 
 
 def test_serve_never_prints_the_database_password(capsys, monkeypatch) -> None:

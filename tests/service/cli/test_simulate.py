@@ -84,12 +84,13 @@ def test_point_summary_of_an_irregular_point_gives_the_standard_error():
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--theta", "-1"], "theta must be > 0, got -1.0"),
-        (["--modes", "31"], "modes must be an integer in 1…30, got 31"),
-        (["--coupling", "x"], "coupling must be one of paper, full"),
-        (["--method", "rk4"], "method must be one of event, exponential, euler, got 'rk4'"),
-        (["--gap", "nan"], "g1 must be finite, got nan"),
-        (["--method", "euler", "--steps-per-period", "16"], "largest stable step"),
+        (["--theta", "-1"], "error: --theta must be > 0, got -1.0"),
+        (["--modes", "31"], "error: --modes must be an integer in 1…30, got 31"),
+        (["--coupling", "x"], "error: --coupling must be one of paper, full"),
+        (["--method", "rk4"], "--method must be one of event, exponential, euler, got 'rk4'"),
+        (["--gap", "nan"], "error: --gap must be finite, got nan"),  # g1 is --gap's field
+        (["--g1", "nan"], "error: --g1 must be finite, got nan"),
+        (["--method", "euler", "--steps-per-period", "16"], "error: --steps-per-period gives"),
     ],
 )
 def test_bad_input_exits_2_with_the_message(args, message):
@@ -153,7 +154,7 @@ def test_the_console_command_runs_in_a_new_process():
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout)["outcome"] == "linear"
     bad = subprocess_run("point", "--theta", "-1")
-    assert bad.returncode == 2 and "theta must be > 0, got -1.0" in bad.stderr
+    assert bad.returncode == 2 and "--theta must be > 0, got -1.0" in bad.stderr
 
 
 def test_ci_runs_the_readme_test_command():

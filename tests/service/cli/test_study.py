@@ -35,7 +35,10 @@ def test_a_bad_variable_exits_2_naming_the_field(
 ) -> None:
     monkeypatch.setenv("IMPACTCELL_MAX_POINTS", "lots")
     assert main(["run", str(study_file)]) == 2
-    assert "max_points" in capsys.readouterr().err
+    assert "IMPACTCELL_MAX_POINTS 'lots': must be a valid integer" in capsys.readouterr().err
+    monkeypatch.setenv("IMPACTCELL_MAX_POINTS", "0")  # a flag wins over a bad variable
+    assert main(["run", str(study_file), "--max-points", "5", "--scheduler", ""]) == 2
+    assert "more than the limit of 5" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- shipped studies

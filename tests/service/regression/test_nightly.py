@@ -7,6 +7,7 @@ shipped suite runs against the shipped baselines in one ``slow`` test.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from service.regression.report import NightlyReport
 from service.regression.run import (
     check_baseline_folder,
     evaluate,
+    make_report,
     run_suite,
     tagged,
     write_baseline,
@@ -92,6 +94,20 @@ def _cli(paths: dict[str, Path], *extra: str) -> int:
             *extra,
         ]
     )  # fmt: skip
+
+
+def _cli_url(paths: dict[str, Path], url: str, token: str) -> int:
+    """``impactcell nightly --url``, its output checked for where the report went."""
+    import contextlib
+    import io
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(["nightly", "--url", url, "--token", token, "--suite", str(paths["suite"]),
+                     "--baselines", str(paths["baselines"]), "--data-dir", str(paths["data"]),
+                     "--quiet"])  # fmt: skip
+    assert f"catalogued as {url}/regressions/" in out.getvalue(), out.getvalue()
+    return code
 
 
 def _perturb(path: Path) -> dict[str, Any]:
@@ -203,19 +219,83 @@ def test_update_baseline_rewrites_and_reports_what_changed(suite: dict[str, Path
     assert again.ok and [s.status for s in again.studies] == ["passed", "passed"]
 
 
-def test_missing_baseline_is_reported_not_raised(suite: dict[str, Path]) -> None:
+def test_a_missing_baseline_is_bad_usage_found_before_anything_runs(
+    suite: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
     (suite["baselines"] / "tiny-euler.nc").unlink()
-    report = _run(suite)
-    assert not report.ok
-    status = {s.study: s for s in report.studies}
-    assert status["tiny"].status == "passed"
-    assert status["tiny-euler"].status == "missing-baseline"
-    assert "--update-baseline" in (status["tiny-euler"].error or "")
-    assert "tiny-euler.nc" in (suite["report"] / "report.md").read_text()
-    assert _cli(suite) == 1
-    assert _cli(suite, "--update-baseline") == 0
+    with pytest.raises(SuiteError, match=r"no baseline in .* for tiny-euler\.nc"):
+        _run(suite)
+    assert _cli(suite) == 2
+    err = capsys.readouterr().err
+    assert "tiny-euler.nc" in err and "--update-baseline" in err and "Traceback" not in err
+    assert not suite["report"].exists() and not suite["data"].exists()  # nothing ran
+    assert _cli(suite, "--update-baseline") == 0  # creating it is what --update-baseline does
     assert (suite["baselines"] / "tiny-euler.nc").is_file()
     assert _cli(suite) == 0
+
+
+def test_a_baseline_folder_that_does_not_exist_is_bad_usage(
+    suite: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    nowhere = tmp_path / "nonexistent"
+    assert _cli({**suite, "baselines": nowhere}) == 2
+    err = capsys.readouterr().err
+    assert f"baseline folder {nowhere} does not exist" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not suite["report"].exists() and not suite["data"].exists()  # nothing ran
+
+
+def test_a_baseline_that_vanishes_mid_run_is_reported_not_raised(
+    suite: dict[str, Path],
+) -> None:
+    entry = {e.stem: e for e in load_suite(suite["suite"])}["tiny-euler"]
+    ds = open_results(suite["baselines"] / "tiny-euler.nc")
+    (suite["baselines"] / "tiny-euler.nc").unlink()
+    cmp = evaluate(entry, ds, "here", suite["baselines"])
+    assert cmp.status == "missing-baseline" and "--update-baseline" in (cmp.error or "")
+
+
+def test_an_unreachable_service_is_bad_usage_found_before_anything_runs(
+    suite: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from service.api.server import free_port
+
+    url = f"http://127.0.0.1:{free_port()}"  # nobody listens there
+    paths = {**suite}
+    argv = ["nightly", "--url", url, "--suite", str(paths["suite"]), "--baselines",
+            str(paths["baselines"]), "--data-dir", str(paths["data"]), "--report",
+            str(paths["report"]), "--quiet"]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"cannot reach the impactcell service at {url}" in err and "Traceback" not in err
+    assert not suite["report"].exists() and not suite["data"].exists()  # nothing ran
+    argv[2] = "notaurl"
+    assert main(argv) == 2
+    assert "--url 'notaurl' is not an http(s) URL" in capsys.readouterr().err
+
+
+def test_the_markdown_report_shows_no_absolute_paths(suite: dict[str, Path]) -> None:
+    _perturb(suite["baselines"] / "tiny.nc")
+    entries = load_suite(suite["suite"])
+    results = []
+    for e in entries:
+        ds = open_results(run_study(e.study, suite["data"], serial=True).path)
+        if e.stem == "tiny-euler":  # gone after the check: an error that names its path
+            (suite["baselines"] / "tiny-euler.nc").unlink()
+        results.append(evaluate(e, ds, str(suite["report"] / "runs" / "x.nc"), suite["baselines"]))
+    report = make_report(
+        entries, results, suite["suite"], suite["baselines"], mode="embedded", update=False,
+        started="2026-01-01T00:00:00+00:00", wall_s=1.0, report_dir=suite["report"],
+    )  # fmt: skip
+    md = (suite["report"] / "report.md").read_text()
+    assert md == report.to_markdown()
+    root = str(suite["suite"].parent)
+    assert root not in md, md
+    assert "Suite `suite`, baselines `baselines`" in md
+    assert "no baseline baselines/tiny-euler.nc" in md
+    # The JSON keeps the paths as they are (tools read it on the machine that ran it).
+    data = json.loads((suite["report"] / "report.json").read_text())
+    assert data["suite"] == str(suite["suite"]) and data["baselines"] == str(suite["baselines"])
 
 
 def test_changed_definition_needs_an_update(suite: dict[str, Path]) -> None:
@@ -271,6 +351,9 @@ def test_url_mode_runs_fresh_through_a_real_service(
                  scheduler=dask_address, api_token="t0k")  # fmt: skip
     server = ServerThread(s).start()
     try:
+        with pytest.raises(SuiteError, match="refused the request: HTTP 401"):
+            _run(suite, url=server.url, token="wrong")  # found before anything runs
+        assert not suite["report"].exists()
         report = _run(suite, url=server.url, token="t0k")
         assert report.ok, report.to_markdown()
         assert report.mode == server.url
@@ -278,7 +361,7 @@ def test_url_mode_runs_fresh_through_a_real_service(
         again = _run(suite, url=server.url, token="t0k")  # at once: the same second, maybe
         assert again.ok
         with Client(server.url, token="t0k") as c:
-            studies = c.list()
+            studies = c.list(full=True)
             # Two suite runs of two studies: four studies, none served from an earlier run;
             # each run's tag is in the definition, the description is the file's.
             assert len(studies) == 4 and all(r["status"] == "finished" for r in studies)
@@ -293,6 +376,22 @@ def test_url_mode_runs_fresh_through_a_real_service(
             c.wait(first["id"], progress=False)
             assert c.submit(entry.study.canonical())["id"] == first["id"]
             assert len(c.list()) == 5
+            # Both runs are catalogued on the service, beside its own nightly runs.
+            regs = c.regressions()
+            assert [r["trigger"] for r in regs] == ["client", "client"]
+            assert all(r["ok"] is True and r["finished_at"] for r in regs)
+            assert again.catalogued == f"{server.url}/regressions/{regs[0]['id']}"
+            assert report.catalogued == f"{server.url}/regressions/{regs[1]['id']}"
+            stored = c.regression(regs[0]["id"])
+            assert stored["report"]["summary"] == again.summary()
+            assert stored["started_at"][:19] == again.started[:19]
+            assert "# Nightly regression: PASSED" in stored["markdown"]
+            assert str(suite["suite"].parent) not in stored["markdown"]
+        # The command line says where it catalogued the report.
+        assert _cli_url(suite, server.url, "t0k") == 0
+        with Client(server.url, token="t0k") as c:
+            newest = c.regressions()[0]
+        assert newest["trigger"] == "client" and newest["ok"] is True
     finally:
         server.stop()
 
@@ -391,7 +490,7 @@ def test_bad_suite_exits_2_with_a_message(
     assert _cli(paths) == 2
     msg = capsys.readouterr().err
     assert "regression.tolerances.theta_eff.absolute: unknown key" in msg
-    assert "worse.yaml: grid.gap: must be >= 0" in msg
+    assert re.search(r"worse\.yaml: grid\.gap: .*must be .*-1", msg)
     assert not (tmp_path / "r").exists()  # nothing ran
     assert _cli({**paths, "suite": tmp_path / "nowhere"}) == 2
     assert "does not exist" in capsys.readouterr().err

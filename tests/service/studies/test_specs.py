@@ -47,14 +47,15 @@ def test_defaults_and_bounds_are_the_workers() -> None:
     for f in dataclasses.fields(CellParams):
         if f.name in AXIS_BOUNDS:
             assert AXIS_BOUNDS[f.name].items() <= dict(f.metadata).items(), f.name
-    assert AXIS_BOUNDS["gap"] == AXIS_BOUNDS["g1"] == {"ge": 0.0}
-    assert AXIS_BOUNDS["frequency_hz"] == {"gt": 0.0}
+    assert AXIS_BOUNDS["gap"] == AXIS_BOUNDS["g1"] == {"ge": 0.0, "le": 1e12}
+    assert AXIS_BOUNDS["frequency_hz"] == {"gt": 0.0, "ge": 1e-6, "le": 1e9}
 
 
 @pytest.mark.parametrize(
     ("block", "values", "worker"),
     [
-        ("solver", {"max_periods": 1}, lambda: SolverSettings(max_periods=1)),
+        ("solver", {"stat_tol_db": 200}, lambda: SolverSettings(stat_tol_db=200)),
+        ("model", {"xi": 11}, lambda: CellParams(1, 1, 1, 1, xi=11)),
         ("solver", {"periodicity_tol": 0.5}, lambda: SolverSettings(periodicity_tol=0.5)),
         ("solver", {"window": 30, "max_periods": 20},
          lambda: SolverSettings(window=30, max_periods=20)),
@@ -72,7 +73,7 @@ def test_a_study_file_gives_the_message_a_direct_call_gives(block, values, worke
 
 def test_the_openapi_schema_carries_the_bounds_and_the_docs() -> None:
     props = SolverSpec.model_json_schema()["properties"]
-    assert props["max_periods"]["minimum"] == 2 and props["max_periods"]["maximum"] == 10**7
+    assert props["max_periods"]["minimum"] == 2 and props["max_periods"]["maximum"] == 100_000
     assert props["stat_tol_db"]["exclusiveMinimum"] == 0.0
     assert "Period budget" in props["max_periods"]["description"]
     assert set(props["method"]["enum"]) == {"event", "exponential", "euler"}
@@ -113,3 +114,43 @@ def test_a_new_worker_field_appears_with_its_type_default_rule_and_doc() -> None
     ]:
         with pytest.raises(ValidationError, match=text):
             spec(**bad)
+
+
+def test_the_schema_says_every_bound_and_why() -> None:
+    from service.studies.grid import MAX_AXIS_VALUES, Range
+    from service.studies.specs import STUDY_SOLVER_CAPS
+
+    grid = Grid.model_json_schema()["properties"]
+    gamma_r = grid["gamma_r"]
+    assert gamma_r["exclusiveMinimum"] == 0.0 and gamma_r["minimum"] == 1e-6
+    assert gamma_r["maximum"] == 1e3
+    assert "Allowed: in [1e-06, 1000]" in gamma_r["description"]
+    assert "frequency" in gamma_r["description"].split("Allowed:")[1]  # the why
+    for axis in (*MODEL_AXES, *PHYSICAL_AXES):
+        assert "maximum" in grid[axis] and "Allowed:" in grid[axis]["description"], axis
+    model = ModelSpec.model_json_schema()["properties"]
+    assert model["xi"]["maximum"] == 10.0 and "critical" in model["xi"]["description"]
+    physical = PhysicalSpec.model_json_schema()["properties"]
+    for name in physical:
+        assert "Allowed:" in physical[name]["description"], name
+    solver = SolverSpec.model_json_schema()["properties"]
+    for name, cap in STUDY_SOLVER_CAPS.items():
+        assert solver[name]["maximum"] == cap["le"], name
+    num = Range.model_json_schema()["properties"]["num"]
+    assert num["maximum"] == MAX_AXIS_VALUES and num["minimum"] == 1
+
+
+def test_study_caps_are_tighter_than_the_workers_and_bound_one_points_work() -> None:
+    from service.studies.specs import MAX_STEPS_PER_POINT, STUDY_SOLVER_CAPS
+
+    worker = {f.name: f.metadata for f in dataclasses.fields(SolverSettings)}
+    for name, cap in STUDY_SOLVER_CAPS.items():
+        assert cap["le"] < worker[name]["le"], name
+        # the worker still takes what a study may not
+        SolverSettings(**{name: cap["le"] + 1, "max_periods": 10**6})
+        with pytest.raises(StudyError, match=rf"{name} must be an integer in \d+…{cap['le']}"):
+            parse_study(_base(solver={name: cap["le"] + 1}))
+    caps = STUDY_SOLVER_CAPS
+    assert caps["max_periods"]["le"] * 1024 <= MAX_STEPS_PER_POINT  # defaults stay in budget
+    ok = {"max_periods": 10_000, "steps_per_period": 65_536}  # 6.6e8 steps
+    assert parse_study(_base(solver=ok)).solver.max_periods == 10_000

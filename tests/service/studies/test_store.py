@@ -275,3 +275,36 @@ def test_physical_results_carry_hz_and_gamma_r(tmp_path: Path) -> None:
     np.testing.assert_allclose(
         ds["gamma_r"].values, 2 * np.pi * np.array([20, 25]) / np.sqrt(350 / 0.01667)
     )
+
+
+def test_update_partial_reads_only_new_chunks_and_rebuilds_when_one_vanishes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records = _with_failure(_records(study))
+    reads: list[str] = []
+    load = StudyStore._load_chunk
+    monkeypatch.setattr(StudyStore, "_load_chunk",
+                        lambda self, p: reads.append(p.name) or load(self, p))  # fmt: skip
+    store.write_chunk(0, 2, records[:2])
+    state = store.update_partial(None)
+    assert state.files_read == 1 and state.filled.tolist() == [True, True] + [False] * 4
+    key = state.key
+    assert store.update_partial(state) is state and state.files_read == 0 and state.key == key
+    store.write_chunk(2, 4, records[2:4], retry=True)
+    state = store.update_partial(state)
+    assert reads == ["0-2.npz", "2-4.npz"] and state.has_retry and state.key != key
+    cols, filled = store.collect_partial()
+    for name in cols:  # incremental equals built at once
+        np.testing.assert_array_equal(state.cols[name], cols[name])
+    np.testing.assert_array_equal(state.filled, filled)
+    (store.chunk_dir / "2-4.npz").unlink()  # a retry chunk removed to compute it again
+    fresh = store.update_partial(state)
+    assert fresh is not state and not fresh.has_retry and fresh.filled.sum() == 2
+    assert fresh.cols["reason"][3] == PENDING and fresh.cols["failed"][3]
+    store.write_chunk(0, 2, [records[2], records[3]])  # a chunk rewritten: read again
+    again = store.update_partial(fresh)
+    assert again is not fresh and reads[-1] == "0-2.npz"
+    assert again.cols["transmittance_db"][0] == records[2]["transmittance_db"]

@@ -1,0 +1,196 @@
+"""The service under load: a real ``impactcell serve`` on 127.0.0.1 and a 2-worker dask cluster.
+
+Measures what a user feels (issue 13):
+
+- ``fair``: a 4-point study submitted while a 2,000-point study runs: seconds until it is
+  finished, and how far the large study got meanwhile (strict FIFO: after the large one);
+- ``cancel``: two points of a minute or more each are cancelled 3 s after they start: seconds
+  until a 4-point study submitted right after the cancel is finished (the cluster is free), and
+  whether the cancelled study wrote anything after the cancel;
+- ``timeseries``: a ``/timeseries`` recomputation of such a point: the slowest ``/health`` and
+  ``GET /studies`` answer while it runs, and how the request ends.
+
+Run: ``python benchmarks/service_under_load.py [--repo PATH] [--out FILE]``. ``--repo`` runs the
+server of another checkout (e.g. a ``git worktree`` of an older commit) for before/after
+figures; the client side speaks both APIs (``POST /studies/{id}/cancel`` or the older
+``DELETE``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+HERE = Path(__file__).resolve().parents[1]
+FAST = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}
+SLOW = {"steps_per_period": 2048, "max_periods": 100, "periodicity_tol": 1e-13}
+HEAVY = {"method": "euler", "steps_per_period": 65_536, "max_periods": 10_000,
+         "early_stop": False, "window": 10}  # fmt: skip
+
+
+def study(name: str, num: int, gaps: list[float], solver: dict[str, Any]) -> dict[str, Any]:
+    return {"name": name, "solver": solver,
+            "grid": {"gamma_r": {"start": 0.5, "stop": 3.0, "num": num}, "gap": gaps,
+                     "theta": 0.3, "sigma": 0.05, "gamma_s": 1.0}}  # fmt: skip
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Server:
+    def __init__(self, repo: Path, data: Path, scheduler: str, env: dict[str, str]) -> None:
+        self.url = f"http://127.0.0.1:{(port := free_port())}"
+        self.log = open(data.parent / f"serve-{port}.log", "wb")  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "serve", "--host", "127.0.0.1", "--port",
+             str(port), "--data-dir", str(data), "--scheduler", scheduler],
+            cwd=repo, env={**os.environ, "PYTHONPATH": str(repo), **env},
+            stdout=self.log, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 120:
+            try:
+                if httpx.get(f"{self.url}/health", timeout=1).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                time.sleep(0.2)
+        raise RuntimeError("server did not start")
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+        self.log.close()
+
+
+def wait(url: str, sid: str, until: Any, timeout: float = 900) -> dict[str, Any]:
+    t0 = time.monotonic()
+    while True:
+        rec = httpx.get(f"{url}/studies/{sid}", timeout=120).json()
+        if until(rec) or time.monotonic() - t0 > timeout:
+            return rec
+        time.sleep(0.1)
+
+
+def cancel(url: str, sid: str) -> None:
+    r = httpx.post(f"{url}/studies/{sid}/cancel", timeout=120)
+    if r.status_code in (404, 405):  # the older API cancelled with DELETE
+        httpx.delete(f"{url}/studies/{sid}", timeout=120)
+
+
+def chunks(data: Path, sid: str) -> int:
+    d = data / "studies" / sid / "chunks"
+    return len(list(d.glob("*.npz"))) if d.is_dir() else 0
+
+
+def fair(url: str) -> dict[str, Any]:
+    big = httpx.post(f"{url}/studies", json=study("big", 500, [0.1, 0.3, 0.5, 0.7], SLOW)).json()
+    wait(url, big["id"], lambda r: r["points_done"] > 0)
+    t0 = time.monotonic()
+    small = httpx.post(f"{url}/studies", json=study("small", 4, [0.1], FAST)).json()
+    rec = wait(url, small["id"], lambda r: r["status"] == "finished")
+    out = {"small_study_s": round(time.monotonic() - t0, 1)}
+    b = httpx.get(f"{url}/studies/{big['id']}").json()
+    out["big_points_done_then"] = b["points_done"]
+    out["big_points"] = b["points_total"]
+    out["small_status"] = rec["status"]
+    out["big_eta_s"] = b.get("eta_s")
+    cancel(url, big["id"])
+    return out
+
+
+def cancelled(url: str, data: Path) -> dict[str, Any]:
+    heavy = httpx.post(f"{url}/studies", json=study("heavy", 2, [0.1], HEAVY)).json()
+    wait(url, heavy["id"], lambda r: r["status"] == "running")
+    time.sleep(3.0)
+    cancel(url, heavy["id"])
+    t0 = time.monotonic()
+    after = httpx.post(f"{url}/studies", json=study("after", 4, [0.2], FAST)).json()
+    rec = wait(url, after["id"], lambda r: r["status"] == "finished")
+    freed = time.monotonic() - t0
+    time.sleep(5.0)
+    return {"cluster_free_after_cancel_s": round(freed, 1), "after_status": rec["status"],
+            "chunks_written_after_cancel": chunks(data, heavy["id"])}  # fmt: skip
+
+
+def timeseries(url: str) -> dict[str, Any]:
+    heavy = httpx.post(f"{url}/studies", json=study("ts", 2, [0.3], HEAVY)).json()
+    cancel(url, heavy["id"])  # only its definition is used
+    out: dict[str, Any] = {}
+
+    def ask() -> None:
+        t0 = time.monotonic()
+        try:
+            r = httpx.get(f"{url}/studies/{heavy['id']}/timeseries",
+                          params={"gamma_r": 0.5, "periods": 2}, timeout=400)  # fmt: skip
+            out["status"] = r.status_code
+            out["detail"] = r.json().get("detail", "")[:120] if r.status_code >= 400 else ""
+        except httpx.HTTPError as exc:
+            out["status"] = f"{type(exc).__name__}"
+        out["timeseries_s"] = round(time.monotonic() - t0, 1)
+
+    t = threading.Thread(target=ask)
+    t.start()
+    slowest = 0.0
+    while t.is_alive():
+        t0 = time.monotonic()
+        try:
+            httpx.get(f"{url}/health", timeout=60)
+            httpx.get(f"{url}/studies", timeout=60)
+            slowest = max(slowest, time.monotonic() - t0)
+        except httpx.HTTPError:
+            slowest = max(slowest, 60.0)
+        time.sleep(0.2)
+    t.join()
+    return {"slowest_health_and_list_s": round(slowest, 2), **out}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repo", type=Path, default=HERE, help="checkout whose server runs")
+    ap.add_argument("--out", type=Path, default=HERE / "benchmarks/results/service_under_load.json")
+    args = ap.parse_args()
+    from dask.distributed import LocalCluster
+
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
+                           silence_logs=40)  # fmt: skip
+    tmp = Path(tempfile.mkdtemp(prefix="impactcell-load-"))
+    data = tmp / "data"
+    srv = Server(args.repo.resolve(), data, cluster.scheduler_address,
+                 {"IMPACTCELL_TIMESERIES_TIME_LIMIT_S": "20"})  # fmt: skip
+    try:
+        git = ["git", "rev-parse", "--short", "HEAD"]
+        rev = subprocess.run(git, cwd=args.repo, capture_output=True, text=True).stdout.strip()
+        rev = rev or "unknown"
+        res = {"commit": rev, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+               "fair": fair(srv.url), "cancel": cancelled(srv.url, data),
+               "timeseries": timeseries(srv.url)}  # fmt: skip
+    finally:
+        srv.stop()
+        cluster.close()
+    print(json.dumps(res, indent=2))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(res, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

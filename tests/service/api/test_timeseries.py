@@ -1,0 +1,83 @@
+"""``/timeseries``: computed off the API process within a time limit, cached, never blocking."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+
+from service.api.app import create_app
+from service.api.routes import timeseries as ts_route
+from service.api.settings import Settings
+from tests.service.api.test_jobs import HEAVY_SOLVER
+from tests.service.helpers import Server, tiny_study
+
+
+def test_a_repeated_request_is_answered_from_the_cache(tmp_path: Path, monkeypatch: Any) -> None:
+    calls = []
+    real = ts_route.point_history
+
+    def counting(*args: Any) -> Any:
+        calls.append(args[2])
+        return real(*args)
+
+    monkeypatch.setattr(ts_route, "point_history", counting)
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
+        sid = tc.post("/studies", json=tiny_study()).json()["id"]
+        q = {"gamma_r": 1.0, "gap": 0.1, "nearest": "true", "periods": 2}
+        first = tc.get(f"/studies/{sid}/timeseries", params=q)
+        second = tc.get(f"/studies/{sid}/timeseries", params=q)
+        assert first.status_code == second.status_code == 200
+        assert first.content == second.content and calls == [2]
+        nc = tc.get(f"/studies/{sid}/timeseries", params={**q, "format": "netcdf"})
+        assert nc.status_code == 200 and nc.content[:3] == b"\x89HD"  # HDF5: NetCDF-4
+        assert calls == [2, 2]  # another format is another answer
+
+
+def test_a_point_over_the_time_limit_is_a_422_naming_the_limit(tmp_path: Path) -> None:
+    s = Settings(data_dir=tmp_path / "data", timeseries_time_limit_s=0.5)
+    with TestClient(create_app(s, run_jobs=False)) as tc:
+        d = tiny_study(name="heavy", num=2, gaps=(0.1,), **HEAVY_SOLVER)
+        sid = tc.post("/studies", json=d).json()["id"]
+        r = tc.get(f"/studies/{sid}/timeseries", params={"gamma_r": 0.5, "periods": 2})
+        assert r.status_code == 422
+        assert "time limit of 0.5 s per point exceeded" in r.json()["detail"]
+
+
+@pytest.mark.slow
+def test_health_answers_while_a_long_timeseries_runs(tmp_path: Path, dask_address: str) -> None:
+    srv = Server(tmp_path / "data", dask_address,
+                 env={"IMPACTCELL_TIMESERIES_TIME_LIMIT_S": "8"})  # fmt: skip
+    try:
+        d = tiny_study(name="heavy", num=2, gaps=(0.1,), **HEAVY_SOLVER)
+        sid = httpx.post(f"{srv.url}/studies", json=d).json()["id"]
+        httpx.post(f"{srv.url}/studies/{sid}/cancel")  # only its definition is needed here
+        out: dict[str, Any] = {}
+
+        def ask() -> None:
+            out["r"] = httpx.get(f"{srv.url}/studies/{sid}/timeseries",
+                                 params={"gamma_r": 0.5, "periods": 2}, timeout=120)  # fmt: skip
+
+        t = threading.Thread(target=ask)
+        t.start()
+        slowest = 0.0
+        polls = 0
+        while t.is_alive():
+            t0 = time.monotonic()
+            assert httpx.get(f"{srv.url}/health", timeout=10).status_code == 200
+            assert httpx.get(f"{srv.url}/studies", timeout=10).status_code == 200
+            slowest = max(slowest, time.monotonic() - t0)
+            polls += 1
+            time.sleep(0.2)
+        t.join()
+        assert polls >= 5  # the recomputation ran for seconds while /health was asked
+        assert slowest < 2.0, f"/health and /studies took up to {slowest:.1f} s"
+        r = out["r"]
+        assert r.status_code == 422 and "time limit of 8 s per point" in r.json()["detail"]
+    finally:
+        srv.stop()

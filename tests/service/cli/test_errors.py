@@ -1,0 +1,393 @@
+"""Errors of the command line: one line on stderr, no traceback, exit 2 for bad usage and 1 for
+failures; flags named as typed; addresses checked before any work; every option's default in
+``--help``.
+
+In process (``main(argv)``) unless marked ``slow``; the ``slow`` ones run the same cases as a
+user does, in a new Python process. Nothing here reaches beyond 127.0.0.1: "unreachable" is a
+port on the loopback that nobody listens on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import xarray as xr
+import yaml
+
+from service.api.server import free_port
+from service.cli import build_parser, main
+from service.cli.common import HelpFormatter
+from service.cli.simulate import FIELD_FLAGS, in_flag_terms
+from tests.service.helpers import tiny_study
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def run(*args: str) -> SimpleNamespace:
+    """The CLI in this process: exit status, stdout and stderr as a subprocess would give."""
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:  # argparse's own errors
+            code = exc.code if isinstance(exc.code, int) else 2
+    return SimpleNamespace(returncode=code or 0, stdout=out.getvalue(), stderr=err.getvalue())
+
+
+def one_error_line(stderr: str) -> str:
+    """The one error line a failed command printed last, with no traceback (progress lines
+    before it, such as the numba compilation notice, are allowed)."""
+    lines = stderr.strip().splitlines()
+    assert lines and "Traceback" not in stderr, stderr
+    assert sum("error:" in line for line in lines) == 1, stderr
+    assert "error:" in lines[-1], stderr
+    return lines[-1]
+
+
+@pytest.fixture
+def closed_port() -> int:
+    """A loopback port nobody listens on (connections are refused at once)."""
+    return free_port()
+
+
+@pytest.fixture
+def listening() -> Iterator[int]:
+    """A loopback port that is in use (bound and listening) for the test."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        yield int(s.getsockname()[1])
+
+
+@pytest.fixture
+def study_file(tmp_path: Path) -> Path:
+    f = tmp_path / "s.yaml"
+    f.write_text(yaml.safe_dump(tiny_study(num=4)))
+    return f
+
+
+# --------------------------------------------------------------------------- the service
+
+
+@pytest.mark.parametrize("command", ["status", "submit"])
+def test_no_service_running_is_a_failure_naming_the_address(
+    command: str, closed_port: int, study_file: Path
+) -> None:
+    url = f"http://127.0.0.1:{closed_port}"
+    args = [command, *([str(study_file)] if command == "submit" else []), "--url", url]
+    t0 = time.monotonic()
+    out = run(*args)
+    assert time.monotonic() - t0 < 15
+    assert out.returncode == 1
+    line = one_error_line(out.stderr)
+    assert line.startswith("impactcell: error: cannot reach the impactcell service at ")
+    assert url in line and "--url" in line
+
+
+def test_a_url_that_is_not_one_is_bad_usage(
+    monkeypatch: pytest.MonkeyPatch, study_file: Path
+) -> None:
+    out = run("status", "--url", "notaurl")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert "--url 'notaurl' is not an http(s) URL" in line
+    monkeypatch.setenv("IMPACTCELL_URL", "ftp://example.invalid")
+    out = run("submit", str(study_file))
+    assert out.returncode == 2
+    assert "IMPACTCELL_URL 'ftp://example.invalid'" in one_error_line(out.stderr)
+    out = run("status", "--url", "http://127.0.0.1:99999")
+    assert out.returncode == 2 and "not a valid URL" in one_error_line(out.stderr)
+
+
+def test_submit_of_an_unreadable_study_file_is_bad_usage(tmp_path: Path) -> None:
+    f = tmp_path / "binary.yaml"
+    f.write_bytes(b"\xff\xfe\x00bad")
+    out = run("submit", str(f), "--url", "http://127.0.0.1:1")
+    assert out.returncode == 2
+    assert f"cannot read study file {f}" in one_error_line(out.stderr)
+
+
+# --------------------------------------------------------------------------- the scheduler
+
+
+def test_unreachable_scheduler_fails_within_seconds(
+    closed_port: int, study_file: Path, tmp_path: Path
+) -> None:
+    address = f"tcp://127.0.0.1:{closed_port}"
+    t0 = time.monotonic()
+    out = run("run", str(study_file), "--scheduler", address, "--out", str(tmp_path / "d"),
+              "--no-progress")  # fmt: skip
+    elapsed = time.monotonic() - t0
+    assert out.returncode == 1
+    line = one_error_line(out.stderr)
+    assert f"cannot reach the dask scheduler at {address}" in line and "--scheduler" in line
+    assert elapsed < 15, f"took {elapsed:.1f} s (dask alone waits 30 s)"
+    assert not (tmp_path / "d" / "studies").exists()  # nothing ran
+
+
+def test_unreachable_scheduler_from_the_environment_is_named_so(
+    closed_port: int, study_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("IMPACTCELL_SCHEDULER", f"tcp://127.0.0.1:{closed_port}")
+    out = run("run", str(study_file), "--out", str(tmp_path / "d"), "--no-progress")
+    assert out.returncode == 1 and "(IMPACTCELL_SCHEDULER)" in one_error_line(out.stderr)
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1", "tcp://:8786", "tcp://host:port"])
+def test_a_malformed_scheduler_address_is_bad_usage(
+    address: str, study_file: Path, tmp_path: Path
+) -> None:
+    out = run("run", str(study_file), "--scheduler", address, "--out", str(tmp_path))
+    assert out.returncode == 2
+    assert f"--scheduler {address!r} is not a scheduler address" in one_error_line(out.stderr)
+
+
+# --------------------------------------------------------------------------- point, spectrum
+
+
+def test_errors_name_the_flag_the_user_typed() -> None:
+    out = run("point", "--gap", "-0.1")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert line.startswith("impactcell: error: --gap must be ") and "-0.1" in line
+    assert "g1" not in line
+    out = run("point", "--g2", "nan")
+    assert out.returncode == 2 and "--g2 must be finite, got nan" in one_error_line(out.stderr)
+    out = run("point", "--xi-b", "-1")
+    assert out.returncode == 2
+    assert one_error_line(out.stderr).startswith("impactcell: error: --xi-b ")
+
+
+def test_an_absurd_frequency_is_a_one_line_error_naming_the_flag() -> None:
+    # The model refuses γ_r = 1e308 (a bound in worker.model.params) or the point fails; either
+    # way one line, no traceback, and the internal field name never shows.
+    out = run("point", "--gamma-r", "1e308")
+    assert out.returncode in (1, 2)
+    line = one_error_line(out.stderr)
+    assert "gamma_r" not in line
+    if out.returncode == 2:
+        assert line.startswith("impactcell: error: --gamma-r ")
+
+
+def test_the_model_errors_are_translated_whatever_their_text(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import worker.model
+
+    def refuse(**kw: object) -> None:
+        raise ValueError("gamma_r must be <= 1000, got 1e+308 (g1 and xi_b are fine)")
+
+    monkeypatch.setattr(worker.model, "CellParams", refuse)
+    out = run("point", "--gamma-r", "1e308")
+    assert out.returncode == 2
+    assert one_error_line(out.stderr) == (
+        "impactcell: error: --gamma-r must be <= 1000, got 1e+308 (--gap and --xi-b are fine)"
+    )
+    monkeypatch.undo()
+    # A spectrum names the end of its range that is out of bounds.
+    out = run("spectrum", "--gamma-r-start", "0.5", "--gamma-r-stop", "-1")
+    assert out.returncode == 2
+    assert one_error_line(out.stderr).startswith("impactcell: error: --gamma-r-stop must be")
+
+
+def test_in_flag_terms_only_rewrites_field_names() -> None:
+    names = {**FIELD_FLAGS, "g1": "--gap"}
+    assert in_flag_terms("g1 must be >= 0, got -0.1", names) == "--gap must be >= 0, got -0.1"
+    assert in_flag_terms("theta must be > 0", names) == "--theta must be > 0"
+    # Plain words in the prose stay, and so do field-like names that are not fields.
+    text = "the method needs theta_eff; window must be < max_periods (100)"
+    assert in_flag_terms(text, names) == (
+        "the method needs theta_eff; window must be < --max-periods (100)"
+    )
+    assert set(FIELD_FLAGS.values()) <= _options("point")
+
+
+def test_a_failed_point_exits_1_with_its_reason() -> None:
+    # Undamped, on resonance: the solver proves at once that there is no steady state.
+    out = run("point", "--xi", "0", "--gamma-r", "1.0", "--json")
+    assert out.returncode == 1
+    record = json.loads(out.stdout)  # the record is still printed
+    assert record["failed"] is True and record["outcome"] == "failed"
+    line = one_error_line(out.stderr)
+    assert line == f"impactcell: error: the point failed: {record['reason']}"
+    plain = run("point", "--xi", "0", "--gamma-r", "1.0")
+    assert plain.returncode == 1 and plain.stdout == ""
+    assert "undamped resonance" in one_error_line(plain.stderr)
+
+
+def test_bad_flag_values_are_one_line_usage_errors() -> None:
+    out = run("point", "--gap", "wide")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert "argument --gap: invalid float value: 'wide'" in line
+    assert "impactcell point --help" in line
+    out = run("spectrum", "--num", "0")
+    assert out.returncode == 2 and "--num: must be >= 1, got 0" in one_error_line(out.stderr)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def test_show_on_a_file_that_is_not_a_study_is_bad_usage(tmp_path: Path) -> None:
+    nc = tmp_path / "other.nc"
+    xr.Dataset({"a": ("x", [1.0, 2.0])}).to_netcdf(nc)
+    out = run("show", str(nc))
+    assert out.returncode == 2
+    assert f"{nc} is not an impactcell results file" in one_error_line(out.stderr)
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    out = run("show", str(text))
+    assert out.returncode == 2 and "is not a readable NetCDF file" in one_error_line(out.stderr)
+
+
+def test_demo_out_where_no_folder_can_be_made_is_bad_usage(tmp_path: Path) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    out = run("demo", "--out", str(blocker / "demo"), "--no-progress")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert f"--out {blocker / 'demo'}: cannot create the folder" in line
+
+
+# --------------------------------------------------------------------------- serve, settings
+
+
+def test_serve_on_a_port_in_use_fails_before_starting_anything(
+    listening: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import uvicorn
+
+    def started(*a: object, **kw: object) -> None:
+        raise AssertionError("uvicorn was started")
+
+    monkeypatch.setattr(uvicorn, "run", started)
+    data = tmp_path / "data"
+    out = run("serve", "--port", str(listening), "--data-dir", str(data))
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert f"--port {listening}: 127.0.0.1:{listening} is already in use" in line
+    assert not data.exists()  # no catalogue, no data folder: nothing was started
+
+
+def test_settings_errors_name_the_variable_its_value_and_what_is_allowed(
+    monkeypatch: pytest.MonkeyPatch, study_file: Path
+) -> None:
+    monkeypatch.setenv("IMPACTCELL_MAX_POINTS", "lots")
+    out = run("run", str(study_file), "--serial")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert line == (
+        "impactcell: error: IMPACTCELL_MAX_POINTS 'lots': must be a valid integer, unable to "
+        "parse string as an integer"
+    )
+    monkeypatch.delenv("IMPACTCELL_MAX_POINTS")
+    out = run("serve", "--port", "70000")
+    assert out.returncode == 2
+    assert "--port 70000: must be less than or equal to 65535" in one_error_line(out.stderr)
+    monkeypatch.setenv("IMPACTCELL_NIGHTLY_CRON", "every night")
+    out = run("serve", "--port", "0")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert "IMPACTCELL_NIGHTLY_CRON: nightly_cron must be a 5-field cron expression" in line
+    assert "'every night'" in line and "pydantic" not in line and "errors.pydantic" not in line
+
+
+# --------------------------------------------------------------------------- help
+
+
+Commands = Iterator[tuple[str, argparse.ArgumentParser]]
+
+
+def _subparsers(parser: argparse.ArgumentParser, prefix: str = "") -> Commands:
+    yield prefix or "impactcell", parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _subparsers(sub, f"{prefix} {name}".strip())
+
+
+def _options(command: str) -> set[str]:
+    parsers = dict(_subparsers(build_parser()))
+    return set(parsers[command]._option_string_actions)
+
+
+def test_help_shows_the_default_of_every_option(capsys: pytest.CaptureFixture[str]) -> None:
+    missing = []
+    commands = list(_subparsers(build_parser()))
+    assert len(commands) > 15  # every command and db subcommand
+    for name, parser in commands:
+        fmt = HelpFormatter(parser.prog)
+        for action in parser._actions:
+            if not action.option_strings or action.default is argparse.SUPPRESS:
+                continue
+            if action.required:  # nothing to default to
+                continue
+            if "default" not in fmt._get_help_string(action).lower():
+                missing.append(f"{name} {action.option_strings[-1]}")
+    assert not missing, f"options whose --help does not say the default: {missing}"
+    with pytest.raises(SystemExit):
+        main(["point", "--help"])
+    text = capsys.readouterr().out
+    assert "(default: 0.3)" in text and "(default: paper)" in text and "(default: off)" in text
+
+
+# --------------------------------------------------------------------------- real processes
+
+
+def _subprocess(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    import os
+
+    return subprocess.run(
+        [sys.executable, "-m", "service.cli", *args], capture_output=True, text=True,
+        timeout=120, cwd=ROOT, env={**os.environ, **(env or {})},
+    )  # fmt: skip
+
+
+@pytest.mark.slow  # new Python processes
+def test_the_same_errors_in_a_real_process(
+    closed_port: int, listening: int, tmp_path: Path
+) -> None:
+    cases = [
+        (["status", "--url", f"http://127.0.0.1:{closed_port}"], {}, 1, "cannot reach"),
+        (
+            [
+                "run",
+                "quick",
+                "--scheduler",
+                f"tcp://127.0.0.1:{closed_port}",
+                "--out",
+                str(tmp_path),
+            ],
+            {},
+            1,
+            "cannot reach the dask scheduler",
+        ),  # fmt: skip
+        (["point", "--xi", "0", "--gamma-r", "1"], {}, 1, "the point failed"),
+        (["status", "--url", "notaurl"], {}, 2, "not an http(s) URL"),
+        (["point", "--gap", "-1"], {}, 2, "--gap must be"),
+        (
+            ["serve", "--port", str(listening), "--data-dir", str(tmp_path / "d")],
+            {},
+            2,
+            "already in use",
+        ),  # fmt: skip
+        (["serve", "--port", "0"], {"IMPACTCELL_WORKERS": "none"}, 2, "IMPACTCELL_WORKERS 'none'"),
+    ]
+    for argv, env, code, text in cases:
+        t0 = time.monotonic()
+        p = _subprocess(*argv, env=env)
+        assert p.returncode == code, (argv, p.stderr)
+        assert text in one_error_line(p.stderr), argv
+        assert time.monotonic() - t0 < 60, argv
+    assert not (tmp_path / "d").exists()
