@@ -327,19 +327,23 @@ class Client:
         study_id: str,
         x: str | None = None,
         y: str | None = None,
-        threshold_db: float = 0.0,
+        threshold_db: float | None = None,
         nearest: bool = False,
+        variable: str = "transmittance_db",
         **sel: float,
     ) -> xr.Dataset:
-        """The bandgap map: Γ over x × y, ``attenuating`` (Γ < threshold) and band edges.
+        """The bandgap map: ``variable`` over x × y, ``attenuating`` (below the threshold) and
+        band edges.
 
-        ``x`` and ``y`` default as in the service (the frequency axis, then the first other
-        varying axis with few values; other axes at their first value). The attributes hold
-        the JSON's description: ``threshold_db``, ``x``, ``y``, ``edges`` and ``slice``
+        ``variable`` is ``transmittance_db`` (Γ), ``transmittance_linear_db`` (Γ_lin, the same
+        cell without stops) or ``impact_effect_db`` (Γ − Γ_lin: bands where impacts add
+        attenuation); ``threshold_db`` defaults to the service's (0 dB, 0 dB, −1 dB). ``x`` and
+        ``y`` default as in the service (the frequency axis, then the first other varying axis
+        with few values; other axes at their first value). The attributes hold the JSON's
+        description: ``variable``, ``threshold_db``, ``x``, ``y``, ``edges`` and ``slice``
         (JSON text).
         """
-        params = self._bandgap_params(x, y, threshold_db, nearest, sel)
-        out = self._request("GET", f"/studies/{study_id}/bandgap", params=params).json()
+        out = self.bandgap_json(study_id, x, y, threshold_db, nearest, variable, **sel)
         return _bandgap_dataset(out)
 
     def bandgap_json(
@@ -347,14 +351,15 @@ class Client:
         study_id: str,
         x: str | None = None,
         y: str | None = None,
-        threshold_db: float = 0.0,
+        threshold_db: float | None = None,
         nearest: bool = False,
+        variable: str = "transmittance_db",
         **sel: float,
     ) -> dict[str, Any]:
         """The bandgap document as the service sends it (plain JSON data, ``bandgap.json``):
         it names its variable, axes (units, long names, values), threshold and the slice it
         was taken at, with the map and the band edges."""
-        params = self._bandgap_params(x, y, threshold_db, nearest, sel)
+        params = self._bandgap_params(x, y, threshold_db, nearest, variable, sel)
         return self._request("GET", f"/studies/{study_id}/bandgap", params=params).json()
 
     def bandgap_csv(
@@ -362,20 +367,24 @@ class Client:
         study_id: str,
         x: str | None = None,
         y: str | None = None,
-        threshold_db: float = 0.0,
+        threshold_db: float | None = None,
         nearest: bool = False,
+        variable: str = "transmittance_db",
         **sel: float,
     ) -> str:
         """The band edges as CSV text, one row per band (``format=csv`` of ``/bandgap``)."""
-        params = self._bandgap_params(x, y, threshold_db, nearest, sel)
+        params = self._bandgap_params(x, y, threshold_db, nearest, variable, sel)
         params["format"] = "csv"
         return self._request("GET", f"/studies/{study_id}/bandgap", params=params).text
 
     @staticmethod
-    def _bandgap_params(x: str | None, y: str | None, threshold_db: float, nearest: bool,
+    def _bandgap_params(x: str | None, y: str | None, threshold_db: float | None,
+                        nearest: bool, variable: str,
                         sel: Mapping[str, Any]) -> dict[str, Any]:  # fmt: skip
-        params: dict[str, Any] = {"threshold_db": threshold_db, "nearest": str(nearest).lower(),
+        params: dict[str, Any] = {"variable": variable, "nearest": str(nearest).lower(),
                                   **_params(sel)}  # fmt: skip
+        if threshold_db is not None:
+            params["threshold_db"] = threshold_db
         if x is not None:
             params["x"] = x
         if y is not None:
@@ -492,12 +501,16 @@ def _bandgap_dataset(out: Mapping[str, Any]) -> xr.Dataset:
     if y:
         coords[y] = np.asarray(out["coords"][y], dtype=float)
         dims = (y, x)
-    gamma = np.asarray(_none_to_nan(out["transmittance_db"]), dtype=float)
+    info = out.get("variable") or {"name": "transmittance_db"}
+    name = str(info["name"])
+    values = np.asarray(_none_to_nan(out[name]), dtype=float)
     mask = np.asarray(out["attenuating"], dtype=bool)
+    attrs = {"units": str(info.get("units", "dB")), "long_name": str(info.get("long_name", ""))}
     ds = xr.Dataset(
-        {"transmittance_db": (dims, gamma, {"units": "dB"}), "attenuating": (dims, mask)},
+        {name: (dims, values, attrs), "attenuating": (dims, mask)},
         coords=coords,
         attrs={
+            "variable": name,
             "threshold_db": out["threshold_db"],
             "x": x,
             "y": y or "",

@@ -86,9 +86,9 @@ def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) ->
     assert [line.split()[0] for line in listed.stdout.splitlines()] == sorted(
         Path(f).stem for f in shipped if "/" not in f and f.endswith(".yaml")
     )
-    ran = cli("run", "paper-fig6-effective-mass", "--serial", "--no-progress", "--json")
+    ran = cli("run", "paper-fig6-theta-sweep", "--serial", "--no-progress", "--json")
     assert ran.returncode == 0, ran.stderr
-    assert json.loads(ran.stdout)["points"] == 25
+    assert json.loads(ran.stdout)["points"] == 30
     # The installed baselines are never written; an explicit folder is asked for.
     refused = cli("nightly", "--update-baseline", "--quiet")
     assert refused.returncode == 2 and "--baselines DIR" in refused.stderr

@@ -28,6 +28,7 @@ from worker.checks import check_field, check_fields, nonnegative, positive
 from worker.model.modal import betas
 
 __all__ = [
+    "BASE_AMPLITUDE_M",
     "CELL_FIELDS",
     "FREQUENCY_HZ",
     "TABLE1_FREQUENCIES_HZ",
@@ -66,6 +67,10 @@ _ACCELERATION = _si(1e-9, 1e7, "1 nm/s² to 1e7 m/s² (a million g, beyond shock
 _OPT = {"optional": True}
 #: The excitation frequency's rule (the argument of :meth:`PhysicalCell.to_model`).
 FREQUENCY_HZ: dict[str, Any] = _si(1e-6, 1e9, "1 µHz to 1 GHz (MEMS resonators)")
+#: The base displacement amplitude's rule: ``base_amplitude_m`` and every value of a
+#: per-frequency amplitude list or table (a study gives ``U_g`` per frequency by setting
+#: ``base_amplitude_m`` point by point).
+BASE_AMPLITUDE_M: dict[str, Any] = _AMPLITUDE
 
 
 @dataclass(frozen=True, kw_only=True)

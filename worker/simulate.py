@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from worker.model import CellParams, assemble
+from worker.model import CellParams, assemble, steady_state
 from worker.solvers.dispatch import KERNELS, RUNS
-from worker.solvers.engine import DIVERGENCE_FACTOR, run_point
+from worker.solvers.engine import DIVERGENCE_FACTOR, linear_reference_db, run_point
 from worker.solvers.event.kernel import EVENT_FIELDS
 from worker.solvers.linear import linear_tail
 from worker.solvers.measure import HISTORY_FIELDS
@@ -51,6 +51,7 @@ __all__ = [
     "SolverSettings",
     "failed_result",
     "kernels_cached",
+    "linear_reference",
     "point_history",
     "simulate_chunk",
     "simulate_point",
@@ -160,6 +161,7 @@ def simulate_chunk(
     for pt in points:
         if cancelled is not None and cancelled():
             break
+        params: CellParams | None = None
         try:
             params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
             res = simulate_point(params, settings, limits=budget, cancelled=cancelled)
@@ -167,8 +169,19 @@ def simulate_chunk(
         except PointCancelled:
             break
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-            results.append(failed_result(settings, str(exc)))
+            # a refused point of a valid cell still has its linear reference
+            lin = linear_reference(params) if params is not None else None
+            results.append(failed_result(settings, str(exc), lin))
     return results
+
+
+def linear_reference(params: CellParams) -> float | None:
+    """Γ_lin (dB): the closed-form transmittance of ``params``' cell with the stops removed
+    (docs/model.md §7), or ``None`` where no closed form exists (undamped resonance)."""
+    try:
+        return linear_reference_db(steady_state(assemble(params)))
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return None
 
 
 def point_history(
@@ -186,10 +199,12 @@ def point_history(
     )  # fmt: skip
 
 
-def failed_result(settings: SolverSettings, reason: str) -> dict[str, Any]:
-    """The record of a point that could not be run."""
+def failed_result(
+    settings: SolverSettings, reason: str, linear_db: float | None = None
+) -> dict[str, Any]:
+    """The record of a point that could not be run (``linear_db``: its cell's Γ_lin, if any)."""
     spp = settings.steps_per_period or 0
-    return PointResult.failure(settings.method, reason, steps_per_period=spp).as_dict()
+    return PointResult.failure(settings.method, reason, linear_db, steps_per_period=spp).as_dict()
 
 
 def _kernel(method: str):

@@ -17,6 +17,19 @@ the neighbouring grid points on either side of the crossing. Each edge has a kin
 
 Selections of the other axes are those of :mod:`service.analysis.selection`; :func:`bandgap_json`
 returns plain Python data in which missing or non-finite numbers are ``None``.
+
+Which quantity a map shows is ``variable`` (:data:`MAP_VARIABLES`), always with the same rule
+"in a band where the value < ``threshold_db``":
+
+``transmittance_db``
+    Γ of the cell with its stops (default threshold 0 dB): where the cell attenuates.
+``transmittance_linear_db``
+    Γ_lin of the same cell without stops (closed form; default 0 dB): the linear cell's bands,
+    e.g. base isolation above γ_r ≈ √2 in the paper coupling.
+``impact_effect_db``
+    Γ − Γ_lin (default threshold −1 dB): where the impacts add more than 1 dB of attenuation
+    compared to the cell without stops. Bands of Γ that are not bands of this map are the
+    linear cell's own.
 """
 
 from __future__ import annotations
@@ -38,7 +51,17 @@ from service.analysis.selection import (
 )
 from service.studies.dataset import jsonable
 
-__all__ = ["EDGE_KINDS", "Band", "band_edges", "bandgap_csv", "bandgap_json", "bandgap_map"]
+__all__ = [
+    "EDGE_KINDS",
+    "MAP_VARIABLES",
+    "Band",
+    "band_edges",
+    "bandgap_csv",
+    "bandgap_json",
+    "bandgap_map",
+    "default_threshold",
+    "threshold_meaning",
+]
 
 #: Edge kinds, in the order of their integer codes in :func:`bandgap_map`'s dataset.
 EDGE_KINDS: tuple[str, ...] = ("crossing", "grid_end", "missing")
@@ -47,6 +70,46 @@ _EDGE_MEANINGS = (
     "the band reaches the end of the grid; the true edge lies beyond it",
     "the neighbouring grid point is missing (failed); the edge is the last known point",
 )
+
+
+#: Variables a bandgap map can show, with their default thresholds (dB).
+MAP_VARIABLES: dict[str, float] = {
+    "transmittance_db": 0.0,
+    "transmittance_linear_db": 0.0,
+    "impact_effect_db": -1.0,
+}
+
+
+def default_threshold(variable: str) -> float:
+    """The default ``threshold_db`` of a map of ``variable`` (:data:`MAP_VARIABLES`)."""
+    _check_variable(variable)
+    return MAP_VARIABLES[variable]
+
+
+def threshold_meaning(variable: str, threshold_db: float) -> str:
+    """What "in a band" means for a map of ``variable`` at ``threshold_db``, in words."""
+    thr = f"{threshold_db:g} dB"
+    if variable == "impact_effect_db":
+        text = f"a point is in a band where impact_effect_db = Γ − Γ_lin < {thr}"
+        if threshold_db <= 0:
+            text += (
+                f": there the impacts attenuate over {-threshold_db:g} dB more than the same "
+                "cell without stops"
+            )
+        return text
+    if variable == "transmittance_linear_db":
+        return (
+            f"a point is in a band where transmittance_linear_db < {thr}: the cell without "
+            "stops (closed form) attenuates there"
+        )
+    return f"a point is attenuating (in a band) where {variable} < {thr}"
+
+
+def _check_variable(variable: str) -> None:
+    if variable not in MAP_VARIABLES:
+        raise AnalysisError(
+            f"variable={variable!r} cannot be mapped; variables are {', '.join(MAP_VARIABLES)}"
+        )
 
 
 class Band(NamedTuple):
@@ -130,39 +193,53 @@ def bandgap_map(
     ds: xr.Dataset,
     x: str,
     y: str | None = None,
-    threshold_db: float = 0.0,
+    threshold_db: float | None = None,
     sel: Selection | None = None,
     nearest: bool = False,
+    variable: str = "transmittance_db",
 ) -> xr.Dataset:
-    """Transmittance over ``x`` (× ``y``) with the attenuating region and band edges.
+    """``variable`` over ``x`` (× ``y``) with the region below the threshold and band edges.
 
     Parameters
     ----------
     ds : xarray.Dataset
-        A results dataset with ``transmittance_db``.
+        A results dataset with ``variable``.
     x : str
         Dimension along which bands are found (e.g. ``gamma_r`` or ``frequency_hz``).
     y : str, optional
         Second dimension (e.g. ``gap``); bands are found for each of its values. Omit for a
         1-d map.
-    threshold_db : float
-        Γ strictly below it is attenuating.
+    threshold_db : float, optional
+        A value strictly below it is in a band (default :func:`default_threshold`: 0 dB for
+        Γ and Γ_lin, −1 dB for the impact effect).
     sel, nearest
         Values of every other dimension (see :func:`slice_axes`).
+    variable : str
+        One of :data:`MAP_VARIABLES`.
 
     Returns
     -------
     xarray.Dataset
-        Sorted by ``x`` (and ``y``), with ``transmittance_db`` and ``attenuating`` (False where
-        Γ is missing) over (y, x); ``band_start``, ``band_stop`` (NaN-padded) and
-        ``band_start_edge``, ``band_stop_edge`` (codes into :data:`EDGE_KINDS`, -1 as padding)
-        over (y, band); ``band_count`` over y. Attributes ``threshold_db``, ``x``, ``y`` (``""``
+        Sorted by ``x`` (and ``y``), with ``variable`` and ``attenuating`` (False where the
+        value is missing) over (y, x); ``outcome`` and ``pending`` (when the results have
+        them: to mark irregular, unsettled, failed and not yet computed cells);
+        ``band_start``, ``band_stop`` (NaN-padded) and ``band_start_edge``,
+        ``band_stop_edge`` (codes into :data:`EDGE_KINDS`, -1 as padding) over (y, band);
+        ``band_count`` over y. Attributes ``variable``, ``threshold_db``, ``x``, ``y`` (``""``
         for a 1-d map).
     """
-    thr = parse_number("threshold_db", threshold_db)
+    _check_variable(variable)
+    if variable not in ds.data_vars and variable != "transmittance_db":
+        raise AnalysisError(
+            f"variable={variable!r} is not in these results: results made before the linear "
+            "reference was added lack it (delete the study and submit it again to compute it)"
+        )
+    thr = default_threshold(variable) if threshold_db is None else parse_number(
+        "threshold_db", threshold_db
+    )  # fmt: skip
     if y is not None and y == x:
         raise AnalysisError(f"x and y must differ, both are {x!r}")
-    gamma = slice_axes(ds, "transmittance_db", [y, x], sel, nearest)
+    gamma = slice_axes(ds, variable, [y, x], sel, nearest)
     gamma = gamma.sortby(x) if y is None else gamma.sortby([y, x])
     xv = gamma[x].values.astype(np.float64)
     rows = gamma.values.reshape(-1, xv.size)
@@ -188,12 +265,12 @@ def bandgap_map(
         "flag_meanings": " ".join(EDGE_KINDS),
         "comment": "-1 pads rows with fewer bands",
     }
-    data_vars = {
-        "transmittance_db": gamma,
+    data_vars: dict[str, Any] = {
+        variable: gamma,
         "attenuating": (
             gamma.dims,
             np.asarray(gamma.notnull() & (gamma < thr)),
-            {"long_name": f"transmittance below {thr:g} dB (False where missing)"},
+            {"long_name": f"{variable} below {thr:g} dB (False where missing)"},
         ),
         "band_start": (
             (*ydims, "band"),
@@ -209,12 +286,17 @@ def bandgap_map(
         "band_stop_edge": ((*ydims, "band"), stop_edge, dict(edge_attrs)),
         "band_count": (ydims, counts, {"long_name": f"number of bands along {x}"}),
     }
+    for extra in ("outcome", "pending"):  # to mark irregular, unsettled, failed, pending cells
+        if extra in ds.data_vars:
+            da = slice_axes(ds, extra, [y, x], sel, nearest)
+            data_vars[extra] = da.sortby(x) if y is None else da.sortby([y, x])
     out = xr.Dataset(data_vars, coords={"band": np.arange(nb)})
     out.attrs = {
+        "variable": variable,
         "threshold_db": thr,
         "x": x,
         "y": y or "",
-        "title": f"transmittance bands along {x}" + (f" for each {y}" if y else ""),
+        "title": f"{variable} bands along {x}" + (f" for each {y}" if y else ""),
     }
     return out
 
@@ -244,11 +326,13 @@ def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> 
     Returns
     -------
     dict
-        ``variable`` (name, units, long name of Γ), ``threshold`` (value, units, meaning),
+        ``variable`` (name, units, long name of the mapped variable), ``threshold`` (value,
+        units, meaning),
         ``axes`` (``x`` and ``y``: name, units, long name, values; ``y`` None for a 1-d map),
         ``slice`` (every fixed coordinate: value, units, long name, whether chosen by default),
-        ``edge_kinds`` (what each edge kind means), and the data: ``dims``,
-        ``transmittance_db`` (None for missing), ``attenuating`` and ``edges``, one
+        ``edge_kinds`` (what each edge kind means), and the data: ``dims``, the values keyed
+        by the variable's name (``transmittance_db`` by default; None for missing),
+        ``attenuating`` and ``edges``, one
         ``{"y": value, "bands": [[start, stop], ...], "kinds": [[start_kind, stop_kind], ...]}``
         per y value (a single entry with ``"y": None`` for a 1-d map), band edges in the units
         of x. Also, as before: ``x``, ``y``, ``threshold_db``, ``coords``, ``units``,
@@ -257,7 +341,8 @@ def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> 
     fixed = dict(fixed or {})
     x = str(ds_map.attrs["x"])
     y = str(ds_map.attrs.get("y") or "") or None
-    gamma = ds_map["transmittance_db"]
+    variable = str(ds_map.attrs.get("variable", "transmittance_db"))
+    gamma = ds_map[variable]
     axes = [a for a in (x, y) if a is not None]
     coords = {a: jsonable(ds_map[a].values) for a in axes}
     scalars = {
@@ -294,14 +379,14 @@ def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> 
     thr = float(ds_map.attrs["threshold_db"])
     return {
         "variable": {
-            "name": "transmittance_db",
+            "name": variable,
             "units": str(gamma.attrs.get("units", "dB")),
             "long_name": str(gamma.attrs.get("long_name", "")),
         },
         "threshold": {
             "value": thr,
             "units": "dB",
-            "meaning": f"a point is attenuating (in a band) where transmittance_db < {thr:g} dB",
+            "meaning": threshold_meaning(variable, thr),
         },
         "axes": {"x": _axis_json(ds_map, x), "y": None if y is None else _axis_json(ds_map, y)},
         "slice": slice_,
@@ -315,7 +400,7 @@ def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> 
         "units": {a: str(ds_map[a].attrs.get("units", "")) for a in axes},
         "long_names": {a: str(ds_map[a].attrs.get("long_name", "")) for a in axes},
         "scalars": scalars,
-        "transmittance_db": jsonable(gamma.values),
+        variable: jsonable(gamma.values),
         "attenuating": jsonable(ds_map["attenuating"].values),
         "edges": edges,
     }

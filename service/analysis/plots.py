@@ -1,9 +1,12 @@
 """PNG and SVG figures of results datasets (the only module that imports matplotlib).
 
-Every function builds its own :class:`matplotlib.figure.Figure` with a
+Every ``*_figure`` function builds its own :class:`matplotlib.figure.Figure` with a
 :class:`~matplotlib.backends.backend_agg.FigureCanvasAgg` (no pyplot state), so figures can
-be drawn from several threads of a web server at once. Each returns the bytes of a figure of a
-fixed size (``figsize × dpi``; no tight bounding box): PNG, or SVG with ``fmt="svg"``. Axes
+be drawn from several threads of a web server at once; tests inspect these objects. Each
+``*_png`` function returns the bytes of that figure at a fixed size (``figsize × dpi``; no
+tight bounding box): PNG, or SVG with ``fmt="svg"``. Points that are not a proven steady state
+(irregular, unsettled, failed) are marked the same way in every figure (:data:`MARKS`) and
+counted in its legend, so a jump in a curve is never mistaken for a resolved feature. Axes
 that a request left open and that were fixed at a default (``fixed``, from
 :func:`service.analysis.selection.default_view`) are named in the title.
 
@@ -25,11 +28,11 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
+from matplotlib.patches import Patch, Rectangle
 
 from service.analysis.bands import EDGE_KINDS, band_edges
 from service.analysis.selection import AnalysisError, Selection, slice_axes
-from service.studies.variables import AXES, axis_symbol, default_x
+from service.studies.variables import AXES, axis_symbol, default_x, outcome_names
 
 # Select the non-interactive backend before pyplot is loaded anywhere (this module never
 # does: figures are drawn with the object API).
@@ -39,8 +42,13 @@ __all__ = [
     "DPI",
     "FIGSIZE",
     "FORMATS",
+    "MARKS",
+    "bandgap_figure",
     "bandgap_png",
+    "cell_edges",
+    "effective_mass_figure",
     "effective_mass_png",
+    "transmittance_figure",
     "transmittance_png",
 ]
 
@@ -99,9 +107,13 @@ def _figure() -> tuple[Figure, Any]:
     return fig, fig.add_subplot()
 
 
-def _png(fig: Figure, fmt: Format = "png") -> bytes:
+def _check_format(fmt: str) -> None:
     if fmt not in FORMATS:
         raise AnalysisError(f"format={fmt!r} is not a figure format; formats are png, svg")
+
+
+def _png(fig: Figure, fmt: Format = "png") -> bytes:
+    _check_format(fmt)
     buf = io.BytesIO()
     # A fixed hash salt and no date: the same figure gives the same SVG bytes (cacheable).
     metadata = {"Date": None} if fmt == "svg" else None
@@ -134,7 +146,86 @@ def _default_x(ds: xr.Dataset, variable: str) -> str:
     )
 
 
-def transmittance_png(
+# --------------------------------------------------------------------------- outcome marks
+
+#: How points that are not a proven steady state are marked, in every figure (outcome ->
+#: Line2D style). Irregular and unsettled points sit on their curve (their Γ is a window mean,
+#: not an orbit's); failed points have no value and sit on a strip at the bottom of the axes.
+MARKS: dict[str, dict[str, Any]] = {
+    "irregular": {"marker": "x", "ms": 6, "mew": 1.4, "color": "k", "mfc": "k"},
+    "unsettled": {"marker": "s", "ms": 6, "mew": 1.3, "color": "C3", "mfc": "none"},
+    "failed": {"marker": "X", "ms": 7, "mew": 0.6, "color": "C3", "mfc": "C3", "mec": "k"},
+}
+_STRIP = 0.03  # height (axes fraction) of the strip where points without a value are marked
+_VARIABLE_TEXT = {  # symbol (titles, legends) and axis label of each mappable variable
+    "transmittance_db": ("Γ", "transmittance Γ (dB)"),
+    "transmittance_linear_db": ("Γ_lin", "transmittance without stops Γ_lin (dB)"),
+    "impact_effect_db": ("Γ − Γ_lin", "impact effect Γ − Γ_lin (dB)"),
+}
+
+
+def _outcomes(
+    ds: xr.Dataset,
+    axes: Sequence[str | None],
+    sel: Selection | None,
+    nearest: bool,
+    like: xr.DataArray,
+) -> np.ndarray:
+    """Outcome names of the points of ``like`` (a slice of ``ds`` over ``axes``, sorted like
+    it). Without an ``outcome`` variable a missing value counts as ``failed``; points a partial
+    dataset has not computed yet are ``pending``."""
+    x = str(like.dims[-1])
+    names = np.where(np.isnan(like.values.astype(np.float64)), "failed", "").astype(object)
+    if "outcome" in ds.data_vars:
+        o = slice_axes(ds, "outcome", axes, sel, nearest).sortby(x).transpose(*like.dims)
+        names = outcome_names(o).astype(object)
+    if "pending" in ds.data_vars:
+        pend = slice_axes(ds, "pending", axes, sel, nearest).sortby(x).transpose(*like.dims)
+        names[np.asarray(pend.values, dtype=bool)] = "pending"
+    return names.astype(str)
+
+
+def _mark_outcomes(ax: Any, xv: np.ndarray, values: np.ndarray, names: np.ndarray) -> None:
+    """Mark irregular and unsettled points on their curve and failed ones on the bottom strip,
+    one artist per outcome (``gid`` ``outcome-<name>``) labelled with its count; points not
+    computed yet are only counted."""
+    xs = np.broadcast_to(xv, values.shape)
+    for kind, style in MARKS.items():
+        hit = names == kind
+        n = int(hit.sum())
+        if not n:
+            continue
+        label = f"{kind} ({n})"
+        if kind == "failed":
+            ax.plot(
+                xs[hit],
+                np.full(n, _STRIP),
+                ls="none",
+                transform=ax.get_xaxis_transform(),
+                clip_on=False,
+                zorder=4,
+                label=label,
+                gid=f"outcome-{kind}",
+                **style,
+            )
+            continue
+        on = hit & np.isfinite(values)  # a missing value (e.g. no slope) has nowhere to go
+        ax.plot(xs[on], values[on], ls="none", zorder=4, label=label, gid=f"outcome-{kind}",
+                **style)  # fmt: skip
+    pending = int(np.sum(names == "pending"))
+    if pending:
+        ax.plot([], [], " ", label=f"not computed yet ({pending})")
+
+
+def _legend(ax: Any, **kwargs: Any) -> None:
+    n = len(ax.get_legend_handles_labels()[1])
+    ax.legend(fontsize=7 if n > 8 else 8, ncols=2 if n > 8 else 1, **kwargs)
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def transmittance_figure(
     ds: xr.Dataset,
     sel: Selection | None = None,
     x: str | None = None,
@@ -142,9 +233,12 @@ def transmittance_png(
     nearest: bool = False,
     *,
     fixed: Mapping[str, Any] | None = None,
-    fmt: Format = "png",
-) -> bytes:
+) -> Figure:
     """Transmittance Γ (dB) against ``x``, one line per value of ``hue`` (paper Fig. 5(a)).
+
+    The linear reference Γ_lin (``transmittance_linear_db``, the same cell without stops) is a
+    thin dashed line of the same colour, when the results have it. Irregular, unsettled and
+    failed points are marked (:data:`MARKS`) and counted in the legend.
 
     Parameters
     ----------
@@ -161,112 +255,168 @@ def transmittance_png(
         Take the closest coordinate values of ``sel``.
     fixed : mapping, optional
         Axes fixed by default (named in the title).
-    fmt : {"png", "svg"}
-        Image format.
 
     Returns
     -------
-    bytes
-        A PNG (or SVG) image.
+    matplotlib.figure.Figure
+        The figure (its canvas is Agg).
     """
     x = x or _default_x(ds, "transmittance_db")
-    da = slice_axes(ds, "transmittance_db", [hue, x], sel, nearest).sortby(x)
+    axes = [hue, x]
+    da = slice_axes(ds, "transmittance_db", axes, sel, nearest).sortby(x)
+    lin = None
+    if "transmittance_linear_db" in ds.data_vars:
+        lin = slice_axes(ds, "transmittance_linear_db", axes, sel, nearest).sortby(x)
     fig, ax = _figure()
     xv = da[x].values
-    if hue is None:
-        ax.plot(xv, da.values, marker=".", ms=3, lw=1.2, label="Γ")
-    else:
-        cmap = matplotlib.colormaps["viridis"]
-        n = da.sizes[hue]
-        for k in range(n):
-            row = da.isel({hue: k})
-            color = cmap(k / max(n - 1, 1) * 0.9)
-            label = f"{axis_symbol(hue)} = {_value(row[hue].values)}"
-            ax.plot(xv, row.values, marker=".", ms=3, lw=1.2, color=color, label=label)
-    ax.axhline(0.0, color="k", lw=0.8, ls="--", label="0 dB")
-    missing = int(np.isnan(da.values).sum())
-    if missing:
-        ax.plot([], [], " ", label=f"{missing} missing point{'s' if missing != 1 else ''}")
+    rows = [da] if hue is None else [da.isel({hue: k}) for k in range(da.sizes[hue])]
+    cmap = matplotlib.colormaps["viridis"]
+    for k, row in enumerate(rows):
+        color = "C0" if hue is None else cmap(k / max(len(rows) - 1, 1) * 0.9)
+        label = "Γ" if hue is None else f"{axis_symbol(hue)} = {_value(row[hue].values)}"
+        ax.plot(xv, row.values, marker=".", ms=3, lw=1.2, color=color, label=label)
+        if lin is not None:
+            ref = lin if hue is None else lin.isel({hue: k})
+            ax.plot(xv, ref.values, ls="--", lw=0.8, color=color, gid="linear-reference")
+    if lin is not None and np.isfinite(lin.values).any():
+        ax.plot([], [], ls="--", lw=0.8, color="0.3", label="Γ_lin: the cell without stops")
+    ax.axhline(0.0, color="k", lw=0.8, ls=":", label="0 dB")
+    _mark_outcomes(ax, xv, da.values.astype(np.float64), _outcomes(ds, axes, sel, nearest, da))
     ax.set_xlabel(_axis_label(x, da[x]))
     ax.set_ylabel("transmittance Γ (dB)")
     sub = _subtitle(da, skip=(x,) if hue is None else (x, hue))
     ax.set_title(_title(sub, _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
-    ax.legend(fontsize=8, loc="best", title=None if hue is None else axis_symbol(hue))
-    return _png(fig, fmt)
+    _legend(ax, loc="best", title=None if hue is None else axis_symbol(hue))
+    return fig
 
 
-def bandgap_png(
-    map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None, fmt: Format = "png"
+def transmittance_png(
+    ds: xr.Dataset,
+    sel: Selection | None = None,
+    x: str | None = None,
+    hue: str | None = None,
+    nearest: bool = False,
+    *,
+    fixed: Mapping[str, Any] | None = None,
+    fmt: Format = "png",
 ) -> bytes:
-    """A :func:`service.analysis.bands.bandgap_map` as an image.
+    """:func:`transmittance_figure` as PNG (or SVG with ``fmt="svg"``) bytes."""
+    _check_format(fmt)
+    return _png(transmittance_figure(ds, sel, x, hue, nearest, fixed=fixed), fmt)
 
-    Two-dimensional maps: Γ as a pcolormesh with a diverging colormap centred on the
-    threshold, the attenuating region hatched and outlined (the threshold contour), band
-    edges marked (``|`` at interpolated edges, ``>``/``<`` where the edge is the grid end or a
-    missing point). One-dimensional maps: Γ against x with the bands shaded. ``fixed`` axes
-    are named in the title; ``fmt`` is ``png`` or ``svg``.
 
-    Returns
-    -------
-    bytes
-        A PNG (or SVG) image.
+def cell_edges(values: np.ndarray) -> np.ndarray:
+    """Edges of the cells centred on sorted grid ``values``: midpoints between neighbours, and
+    half a step beyond each end (±0.5 around a single value)."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.size == 1:
+        return np.array([v[0] - 0.5, v[0] + 0.5])
+    mid = 0.5 * (v[1:] + v[:-1])
+    return np.concatenate([[v[0] - (mid[0] - v[0])], mid, [v[-1] + (v[-1] - mid[-1])]])
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs ``[i, j)`` of true values of a 1-d mask."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None) -> Figure:
+    """A :func:`service.analysis.bands.bandgap_map` as a figure.
+
+    Two-dimensional maps: the variable as a pcolormesh whose cells are centred on the grid
+    points (edges at the midpoints, :func:`cell_edges`), with a diverging colormap (centred
+    on the threshold; on 0 dB for the impact effect); the cells below the threshold hatched
+    (one rectangle per run of such cells along x, on exactly those cells' edges, ``gid``
+    ``attenuating``); band edges marked (``|`` at interpolated edges, ``>``/``<`` where the
+    edge is the grid end or a missing point); irregular, unsettled and failed cells marked at
+    their centres (:data:`MARKS`) and counted in the legend. One-dimensional maps: the
+    variable against x with the bands shaded and the same marks. ``fixed`` axes are named in
+    the title.
     """
     x = str(map_ds.attrs["x"])
     y = str(map_ds.attrs.get("y") or "") or None
+    variable = str(map_ds.attrs.get("variable", "transmittance_db"))
+    symbol, label = _VARIABLE_TEXT.get(variable, (variable, f"{variable} (dB)"))
     thr = float(map_ds.attrs["threshold_db"])
-    gamma = map_ds["transmittance_db"]
+    gamma = map_ds[variable]
     xv = map_ds[x].values.astype(np.float64)
+    names = None
+    order = (*([y] if y else []), x)  # (y, x) or (x,), like the values below
+    if "outcome" in map_ds.data_vars:
+        names = outcome_names(map_ds["outcome"].transpose(*order)).astype(object)
+        if "pending" in map_ds.data_vars:
+            names[np.asarray(map_ds["pending"].transpose(*order).values, dtype=bool)] = "pending"
+        names = names.astype(str)
     fig, ax = _figure()
     counts = np.atleast_1d(map_ds["band_count"].values)
     starts = np.atleast_2d(map_ds["band_start"].values)
     stops = np.atleast_2d(map_ds["band_stop"].values)
     s_edge = np.atleast_2d(map_ds["band_start_edge"].values)
     e_edge = np.atleast_2d(map_ds["band_stop_edge"].values)
-    title = f"attenuation bands (Γ < {thr:g} dB)"
+    title = {
+        "impact_effect_db": f"where impacts add attenuation ({symbol} < {thr:g} dB)",
+        "transmittance_linear_db": f"bands of the cell without stops ({symbol} < {thr:g} dB)",
+    }.get(variable, f"attenuation bands ({symbol} < {thr:g} dB)")
     sub = _subtitle(gamma, skip=(x, y or "", "band"))
     ax.set_title(_title(title, sub, _fixed_text(fixed)), fontsize=9)
     ax.set_xlabel(_axis_label(x, map_ds[x]))
 
     if y is None:
         g = gamma.values.astype(np.float64)
-        ax.plot(xv, g, marker=".", ms=3, lw=1.2, color="C0", label="Γ")
+        ax.plot(xv, g, marker=".", ms=3, lw=1.2, color="C0", label=symbol)
         ax.axhline(thr, color="k", lw=0.8, ls="--", label=f"threshold {thr:g} dB")
         for k in range(int(counts[0])):
-            ax.axvspan(
-                starts[0, k],
-                stops[0, k],
-                color="C1",
-                alpha=0.25,
-                lw=0,
-                label="attenuation band" if k == 0 else None,
-            )
-        ax.set_ylabel("transmittance Γ (dB)")
+            ax.axvspan(starts[0, k], stops[0, k], color="C1", alpha=0.25, lw=0,
+                       label="band" if k == 0 else None)  # fmt: skip
+        if names is None:
+            names = np.where(np.isnan(g), "failed", "").astype(str)
+        _mark_outcomes(ax, xv, g, names)
+        ax.set_ylabel(label)
         ax.grid(True, lw=0.4, alpha=0.5)
-        ax.legend(fontsize=8, loc="best")
-        return _png(fig, fmt)
+        _legend(ax, loc="best")
+        return fig
 
     yv = map_ds[y].values.astype(np.float64)
     g = np.ma.masked_invalid(gamma.transpose(y, x).values.astype(np.float64))
     finite = g.compressed()
-    lo = float(finite.min()) if finite.size else thr - 1.0
-    hi = float(finite.max()) if finite.size else thr + 1.0
-    span = max(abs(lo - thr), abs(hi - thr), 1e-6)
-    norm = TwoSlopeNorm(vcenter=thr, vmin=thr - span, vmax=thr + span)
+    centre = 0.0 if variable == "impact_effect_db" else thr
+    lo = float(finite.min()) if finite.size else centre - 1.0
+    hi = float(finite.max()) if finite.size else centre + 1.0
+    span = max(abs(lo - centre), abs(hi - centre), 1e-6)
+    norm = TwoSlopeNorm(vcenter=centre, vmin=centre - span, vmax=centre + span)
     cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.75")
-    mesh = ax.pcolormesh(xv, yv, g, cmap=cmap, norm=norm, shading="nearest")
+    xe, ye = cell_edges(xv), cell_edges(yv)
+    mesh = ax.pcolormesh(xe, ye, g, cmap=cmap, norm=norm, shading="flat")
     cbar = fig.colorbar(mesh, ax=ax)
-    cbar.set_label("Γ (dB)")
+    cbar.set_label(label)
     cbar.ax.axhline(thr, color="k", lw=1.0)
     handles: list[Any] = []
-    if xv.size > 1 and yv.size > 1 and finite.size and lo < thr < hi:
-        ax.contourf(
-            xv, yv, g, levels=[lo - 1.0, thr], colors="none", hatches=["//"], antialiased=False
+    below = np.asarray(map_ds["attenuating"].transpose(y, x).values, dtype=bool)
+    for r in range(yv.size):
+        for i, j in _runs(below[r]):
+            ax.add_patch(
+                Rectangle(
+                    (xe[i], ye[r]),
+                    xe[j] - xe[i],
+                    ye[r + 1] - ye[r],
+                    fill=False,
+                    hatch="//",
+                    edgecolor="k",
+                    lw=0.5,
+                    gid="attenuating",
+                )
+            )
+    if below.any():
+        handles.append(
+            Patch(
+                facecolor="none",
+                edgecolor="k",
+                hatch="//",
+                label=f"{symbol} < {thr:g} dB ({int(below.sum())} cells)",
+            )
         )
-        ax.contour(xv, yv, g, levels=[thr], colors="k", linewidths=1.0)
-        handles.append(Patch(facecolor="none", edgecolor="k", hatch="//", label="Γ < threshold"))
-    elif finite.size and hi < thr:
-        handles.append(Patch(facecolor="none", edgecolor="k", label="everywhere Γ < threshold"))
     open_kinds = (EDGE_KINDS.index("grid_end"), EDGE_KINDS.index("missing"))
     for r, yy in enumerate(yv):
         for k in range(int(counts[r])):
@@ -275,16 +425,8 @@ def bandgap_png(
                 (stops[r, k], e_edge[r, k], ">"),
             ):
                 is_open = kind in open_kinds
-                ax.plot(
-                    [val],
-                    [yy],
-                    marker=sym if is_open else "|",
-                    ms=7 if is_open else 11,
-                    mew=1.8,
-                    color="k",
-                    mfc="none" if is_open else "k",
-                    ls="none",
-                )
+                ax.plot([val], [yy], marker=sym if is_open else "|", ms=7 if is_open else 11,
+                        mew=1.8, color="k", mfc="none" if is_open else "k", ls="none")  # fmt: skip
     if counts.sum():
         handles.append(Line2D([], [], marker="|", ms=11, mew=1.8, color="k", ls="none",
                               label="band edge (interpolated)"))  # fmt: skip
@@ -295,29 +437,54 @@ def bandgap_png(
     ):
         handles.append(Line2D([], [], marker=">", ms=7, mew=1.5, color="k", mfc="none",
                               ls="none", label="edge at grid end / missing point"))  # fmt: skip
-    if np.ma.count_masked(g):
-        handles.append(Patch(facecolor="0.75", label="missing (failed point)"))
+    if names is None:
+        names = np.where(np.ma.getmaskarray(g), "failed", "").astype(str)
+    xs, ys = np.meshgrid(xv, yv)
+    for kind, style in MARKS.items():
+        hit = names == kind
+        n = int(hit.sum())
+        if n:  # at the cell centres: every marked cell is a grid point
+            ax.plot(xs[hit], ys[hit], ls="none", zorder=4, gid=f"outcome-{kind}", **style)
+            handles.append(Line2D([], [], ls="none", label=f"{kind} ({n})", **style))
+    pending = int(np.sum(names == "pending"))
+    if pending:
+        handles.append(Patch(facecolor="0.75", label=f"not computed yet ({pending})"))
+    missing = int(np.sum(np.ma.getmaskarray(g) & ~np.isin(names, ["failed", "pending"])))
+    if missing:
+        handles.append(Patch(facecolor="0.75", label=f"missing ({missing})"))
+    ax.set_xlim(xe[0], xe[-1])
+    ax.set_ylim(ye[0], ye[-1])
     ax.set_ylabel(_axis_label(y, map_ds[y]))
     if handles:
-        fig.legend(handles=handles, fontsize=7, loc="outside lower center", ncols=len(handles))
-    return _png(fig, fmt)
+        fig.legend(handles=handles, fontsize=7, loc="outside lower center",
+                   ncols=min(len(handles), 4))  # fmt: skip
+    return fig
 
 
-def effective_mass_png(
+def bandgap_png(
+    map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None, fmt: Format = "png"
+) -> bytes:
+    """:func:`bandgap_figure` as PNG (or SVG with ``fmt="svg"``) bytes."""
+    _check_format(fmt)
+    return _png(bandgap_figure(map_ds, fixed=fixed), fmt)
+
+
+def effective_mass_figure(
     ds: xr.Dataset,
     sel: Selection | None = None,
     x: str | None = None,
     nearest: bool = False,
     *,
     fixed: Mapping[str, Any] | None = None,
-    fmt: Format = "png",
-) -> bytes:
+) -> Figure:
     """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): from first harmonics (Eq. 35)
     and, as a second estimator, from the slope of the velocity phase portrait.
 
     Negative effective mass (θ_eff < 0) is shaded, with the shaded intervals' edges
     interpolated like band edges. When |θ_eff| spans more than two decades the y axis is
     symmetric-logarithmic (linear within ±1), so resonance peaks do not flatten the rest.
+    Irregular, unsettled and failed points are marked on the θ_eff curve (:data:`MARKS`) and
+    counted in the legend.
 
     Parameters
     ----------
@@ -331,13 +498,11 @@ def effective_mass_png(
         Take the closest coordinate values of ``sel``.
     fixed : mapping, optional
         Axes fixed by default (named in the title).
-    fmt : {"png", "svg"}
-        Image format.
 
     Returns
     -------
-    bytes
-        A PNG (or SVG) image.
+    matplotlib.figure.Figure
+        The figure (its canvas is Agg).
     """
     x = x or _default_x(ds, "theta_eff")
     harmonic = slice_axes(ds, "theta_eff", [x], sel, nearest).sortby(x)
@@ -350,28 +515,14 @@ def effective_mass_png(
     h = harmonic.values.astype(np.float64)
     fig, ax = _figure()
     for k, band in enumerate(band_edges(xv, h, 0.0)):
-        ax.axvspan(
-            band.start,
-            band.stop,
-            color="C3",
-            alpha=0.15,
-            lw=0,
-            label="θ_eff < 0 (negative effective mass)" if k == 0 else None,
-        )
+        ax.axvspan(band.start, band.stop, color="C3", alpha=0.15, lw=0,
+                   label="θ_eff < 0 (negative effective mass)" if k == 0 else None)  # fmt: skip
     ax.plot(xv, h, marker=".", ms=3, lw=1.2, color="C0", label="θ_eff, first harmonics (Eq. 35)")
     if slope is not None and np.isfinite(slope.values).any():
-        ax.plot(
-            xv,
-            slope.values,
-            marker="o",
-            ms=3,
-            lw=1.0,
-            ls="--",
-            mfc="none",
-            color="C1",
-            label="θ_eff, phase-portrait slope",
-        )
+        ax.plot(xv, slope.values, marker="o", ms=3, lw=1.0, ls="--", mfc="none", color="C1",
+                label="θ_eff, phase-portrait slope")  # fmt: skip
     ax.axhline(0.0, color="k", lw=0.8)
+    _mark_outcomes(ax, xv, h, _outcomes(ds, [x], sel, nearest, harmonic))
     both = np.concatenate([h, slope.values if slope is not None else []])
     both = np.abs(both[np.isfinite(both)])
     if both.size and both.max() > 100 * max(np.median(both), 1.0):
@@ -380,5 +531,19 @@ def effective_mass_png(
     ax.set_ylabel("effective mass ratio θ_eff (–)")
     ax.set_title(_title(_subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
-    ax.legend(fontsize=8, loc="best")
-    return _png(fig, fmt)
+    _legend(ax, loc="best")
+    return fig
+
+
+def effective_mass_png(
+    ds: xr.Dataset,
+    sel: Selection | None = None,
+    x: str | None = None,
+    nearest: bool = False,
+    *,
+    fixed: Mapping[str, Any] | None = None,
+    fmt: Format = "png",
+) -> bytes:
+    """:func:`effective_mass_figure` as PNG (or SVG with ``fmt="svg"``) bytes."""
+    _check_format(fmt)
+    return _png(effective_mass_figure(ds, sel, x, nearest, fixed=fixed), fmt)

@@ -105,13 +105,18 @@ def _client(args: argparse.Namespace) -> Any:
 
 def _cmd_submit(args: argparse.Namespace) -> int:
     from service.client import ClientError, StudyFailed
+    from service.studies.files import read_study_file
     from service.studies.shipped import resolve_study_file
 
     study = resolve_study_file(args.study)
     _readable(study)
+    # Read here, not by the service: a base-amplitude table file beside the study is read into
+    # its definition (the service never opens files a study names). Errors are ValueErrors:
+    # one line, exit 2.
+    definition = read_study_file(study)
     with _client(args) as c:
         try:
-            rec = c.submit(study)
+            rec = c.submit(definition)
             print(f"{rec['id']}  {rec['name']}  {rec['status']}  {rec['points_total']:,} points")
             if args.wait:
                 rec = _wait(c, rec["id"], progress=not args.no_progress)
@@ -203,19 +208,55 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             (out / "transmittance.png").write_bytes(
                 c.plot(rec["id"], "transmittance", x="gamma_r", hue="gap", **sel)
             )
-            edges = doc["edges"]
             (out / "bandgap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+            # What the impacts add: the same cell without stops (Γ_lin) and Γ − Γ_lin.
+            lin = c.bandgap_json(rec["id"], x="gamma_r", y="gap", nearest=True,
+                                 variable="transmittance_linear_db", **sel)  # fmt: skip
+            effect = c.bandgap_json(
+                rec["id"], x="gamma_r", y="gap", threshold_db=-1.0, nearest=True,
+                variable="impact_effect_db", **sel,
+            )  # fmt: skip
+            (out / "impact_effect.json").write_text(json.dumps(effect, indent=1), encoding="utf-8")
+            effect_png = c.plot(rec["id"], "bandgap", x="gamma_r", y="gap", threshold_db=-1.0,
+                                variable="impact_effect_db", **sel)  # fmt: skip
+            (out / "impact_effect.png").write_bytes(effect_png)
     finally:
         server.stop()
     print(f"{rec['points_total']:,} points in {time.perf_counter() - t0:.1f} s "
           f"({rec['points_failed']} failed, {rec['points_irregular']} irregular, "
           f"{rec.get('points_unsettled', 0)} unsettled)")  # fmt: skip
-    for band in edges:
-        spans = ", ".join(f"{a:.3g}–{b:.3g}" for a, b in band["bands"]) or "none"
-        print(f"  gap {band['y']:g}: Γ < 0 dB for γ_r in {spans}")
-    print(f"wrote {nc.name}, bandgap.png, transmittance.png, bandgap.json to")
+    for line in _demo_lines(doc, lin, effect):
+        print(line)
+    print(f"wrote {nc.name}, bandgap.png, transmittance.png, bandgap.json, impact_effect.png, "
+          "impact_effect.json to")  # fmt: skip
     print(out)
     return 0
+
+
+def _spans(bands: Any) -> str:
+    return ", ".join(f"{a:.3g}–{b:.3g}" for a, b in bands) or "none"
+
+
+def _demo_lines(doc: dict[str, Any], lin: dict[str, Any], effect: dict[str, Any]) -> list[str]:
+    """Per gap: Γ's bands, the bands of the cell without stops, and where the impacts add (or
+    remove) more than 1 dB of attenuation: what the stops widen, narrow or create."""
+    import numpy as np
+
+    from service.analysis.bands import band_edges
+
+    x = np.asarray(effect["coords"][effect["x"]], dtype=float)
+    values = np.array(effect["impact_effect_db"], dtype=float)  # None -> nan
+    out = []
+    for k, band in enumerate(doc["edges"]):
+        row = values[k] if values.ndim == 2 else values
+        # impact effect > +1 dB: attenuation the impacts take away
+        less = [(b.start, b.stop) for b in band_edges(x, -row, -1.0)]
+        out.append(
+            f"  gap {band['y']:g}: Γ < 0 dB for γ_r in {_spans(band['bands'])}; without stops "
+            f"{_spans(lin['edges'][k]['bands'])}; impacts add > 1 dB of attenuation for γ_r in "
+            f"{_spans(effect['edges'][k]['bands'])}, remove > 1 dB in {_spans(less)}"
+        )
+    return out
 
 
 def _output_folder(text: str) -> Path:

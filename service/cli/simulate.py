@@ -133,6 +133,10 @@ def _cmd_point(args: argparse.Namespace) -> int:
     se = result.transmittance_db_se
     print(f"transmittance Γ     {result.transmittance_db:.6f}"
           + (f" ± {se:.2g}" if se is not None else "") + " dB")  # fmt: skip
+    lin, eff = result.transmittance_linear_db, result.impact_effect_db
+    if lin is not None:  # the same cell without stops, and what the impacts change
+        print(f"without stops Γ_lin {lin:.6f} dB (impact effect Γ − Γ_lin "
+              f"{'n/a' if eff is None else f'{eff:+.6f}'} dB)")  # fmt: skip
     print(f"amplitude A_s       {result.amplitude:.6g}")
     print(f"θ_eff (harmonic)    {result.theta_eff:.6g}")
     ts = result.theta_eff_slope

@@ -135,6 +135,17 @@ def _columns(records: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
     return cols
 
 
+def _chunk_column(data: Mapping[str, np.ndarray], name: str, n: int) -> np.ndarray:
+    """Column ``name`` of a loaded chunk of ``n`` points. Chunk files written before a float
+    variable existed (``transmittance_linear_db``, ``impact_effect_db``) lack it: missing
+    (NaN) there, so a study resumed across the change still collates."""
+    if name in data:
+        return data[name]
+    if VARIABLES[name].kind == "float":
+        return np.full(n, np.nan)
+    raise KeyError(name)
+
+
 # --------------------------------------------------------------------------- the store
 
 
@@ -322,7 +333,7 @@ class StudyStore:
             if state.filled[start:stop].any():
                 raise ValueError(f"chunk file {path} overlaps another chunk")
             for col in CHUNK_FIELDS:
-                state.cols[col][start:stop] = data[col]
+                state.cols[col][start:stop] = _chunk_column(data, col, stop - start)
             state.filled[start:stop] = True
             state.seen[name] = (*stamp, bool(data["_retry"]))
             state.files_read += 1
@@ -354,7 +365,7 @@ class StudyStore:
             if filled[start:stop].any():
                 raise ValueError(f"chunk file {path} overlaps another chunk")
             for name in CHUNK_FIELDS:
-                a = data[name]
+                a = _chunk_column(data, name, stop - start)
                 if name not in cols:
                     dtype = object if a.dtype.kind == "U" else a.dtype
                     cols[name] = np.empty((n, *a.shape[1:]), dtype=dtype)

@@ -8,7 +8,10 @@ solver settings as global attributes.
 Missing values: a failed point has ``failed = 1``, ``outcome = failed``, a ``reason``, and every
 measured variable missing. Some values are missing by nature at points that did not fail:
 ``transmittance_db_se`` (only irregular and unsettled points have one), ``floquet_multiplier``
-(only linear and periodic points), ``theta_eff_slope`` (where the phase portrait has no slope).
+(only linear and periodic points), ``theta_eff_slope`` (where the phase portrait has no slope),
+``transmittance_linear_db`` and ``impact_effect_db`` (no closed form: an undamped resonance; or
+a chunk written before they existed). ``transmittance_linear_db`` is a property of the cell and
+is kept at failed points; ``impact_effect_db`` is missing there.
 Floats are NaN in memory and the netCDF ``_FillValue`` on disk (no NaN is written); integer
 variables that can be missing (``response_period``, ``steady_period``) are stored as int32 with
 ``_FillValue = -1`` and read back by xarray as float with NaN.
@@ -35,6 +38,7 @@ from service.studies.provenance import provenance_attrs
 from service.studies.schema import Study
 from service.studies.variables import (
     AXES,
+    PHYSICAL_VARIABLES,
     VARIABLES,
     outcome_attrs,
     outcome_counts,
@@ -92,8 +96,11 @@ def results_from_records(
     if study.is_physical:
         # Results carry the model's parameters too (γ_r next to Hz, and the rest).
         pts = list(study.iter_points())
-        for k in _DERIVED:
-            v = np.array([p[k] for p in pts], dtype=np.float64)
+        cells = study.cells(0, study.size)
+        derived = {k: np.array([p[k] for p in pts], dtype=np.float64) for k in _DERIVED}
+        # U_g of each point: per frequency (a table, base acceleration) or the cell's own.
+        derived["base_amplitude_m"] = np.array([c.base_amplitude_at(f) for c, f in cells])
+        for k, v in derived.items():
             attrs = dict(_attrs(k))
             attrs["long_name"] += " (derived from the physical cell, docs/model.md section 8)"
             if k in coords:
@@ -133,6 +140,12 @@ def results_from_records(
             data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
         else:
             data_vars[name] = (dims, a.reshape(shape), attrs)
+    if study.is_physical and "amplitude" in data_vars:
+        # Metres as well as units of B; B = U_g/(θγ_s) differs from point to point.
+        scale = np.array([c.length_scale_m(f) for c, f in cells]).reshape(shape)
+        var = PHYSICAL_VARIABLES["amplitude_m"]
+        attrs = {"units": var.units, "long_name": var.long_name}
+        data_vars["amplitude_m"] = (dims, data_vars["amplitude"][1] * scale, attrs)
     provenance = provenance_attrs()
     attrs = {
         "Conventions": "CF-1.8",

@@ -4,6 +4,11 @@ Every way a study definition comes in goes through here: ``impactcell run`` and
 :func:`service.studies.schema.load_study` (a file), the nightly suite (a folder of files), and
 ``POST /studies`` (a request body, whose content type says which format it is).
 
+A study file may name a table file (``physical.base_amplitude_table: amplitudes.csv``, relative
+to the study file): :func:`read_study_file` reads it and puts its rows in the definition
+(:func:`read_amplitude_table`), so that the study id hashes the table's content, not its name.
+Text (a request body) never opens files: a name there is refused by validation.
+
 Hostile text is refused here, as a :class:`StudyFileError`, before it can cost anything:
 nesting deeper than :data:`MAX_DEPTH` (a study is four levels deep; 100,000 would exhaust the
 parser's recursion) is found by a scan of the text, and integer literals longer than
@@ -13,8 +18,10 @@ them) but kept as :class:`HugeInteger`, which validation refuses naming the fiel
 
 from __future__ import annotations
 
+import csv
 import functools
 import json
+import math
 import os
 import re
 from pathlib import Path
@@ -30,6 +37,7 @@ __all__ = [
     "StudyFileError",
     "file_format",
     "parse_study_text",
+    "read_amplitude_table",
     "read_study_file",
 ]
 
@@ -243,6 +251,84 @@ def read_study_file(path: str | os.PathLike[str]) -> Any:
     except OSError as exc:
         raise StudyFileError(f"cannot read study file {p}: {exc.strerror}", exc) from None
     try:
-        return parse_study_text(text, file_format(p))
+        data = parse_study_text(text, file_format(p))
+        return _with_tables(data, p.parent)
     except StudyFileError as exc:
         raise StudyFileError(f"{p}: {exc}", exc.cause) from None
+
+
+#: The columns of a base amplitude table file (others are allowed and ignored).
+TABLE_COLUMNS = ("frequency_hz", "base_amplitude_m")
+
+
+def _with_tables(data: Any, folder: Path) -> Any:
+    """``data`` with a table file named in ``physical.base_amplitude_table`` replaced by its
+    rows and name (``{file, frequency_hz, base_amplitude_m}``)."""
+    physical = data.get("physical") if isinstance(data, dict) else None
+    name = physical.get("base_amplitude_table") if isinstance(physical, dict) else None
+    if not isinstance(name, str):
+        return data  # absent, or rows given inline: validation checks them
+    try:
+        rows = read_amplitude_table(folder / name)
+    except StudyFileError as exc:
+        raise StudyFileError(f"physical.base_amplitude_table: {exc}", exc.cause) from None
+    return {**data, "physical": {**physical, "base_amplitude_table": {"file": name, **rows}}}
+
+
+def read_amplitude_table(path: str | os.PathLike[str]) -> dict[str, list[float]]:
+    """Read a base amplitude table: CSV with a header naming ``frequency_hz`` and
+    ``base_amplitude_m`` (SI units; other columns ignored), one row per frequency; blank lines
+    and lines starting with ``#`` (notes on where the values came from) are skipped.
+
+    Returns
+    -------
+    dict
+        ``{"frequency_hz": [...], "base_amplitude_m": [...]}`` in the file's row order; the
+        ranges and the match with the grid are checked by the study's validation.
+
+    Raises
+    ------
+    StudyFileError
+        The file cannot be read, lacks a column, or has a value that is not a finite number
+        (the message names the file, the line and the column).
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        why = getattr(exc, "strerror", None) or str(exc)
+        raise StudyFileError(f"cannot read table file {p}: {why}", exc) from None
+    lines = [
+        (i, line)
+        for i, line in enumerate(text.splitlines(), start=1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
+    if not lines:
+        raise StudyFileError(f"{p}: empty table; a header {','.join(TABLE_COLUMNS)} and one "
+                             "row per frequency are needed", ValueError(p))  # fmt: skip
+    # One line, one row (no quoted line breaks in a table of numbers).
+    rows = [next(csv.reader([line]), []) for _, line in lines]
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in TABLE_COLUMNS if c not in header]
+    if missing:
+        raise StudyFileError(
+            f"{p}: line {lines[0][0]}: the header must name the columns "
+            f"{', '.join(TABLE_COLUMNS)}; got {', '.join(header)}, missing {', '.join(missing)}",
+            ValueError(missing),
+        )
+    where = {c: header.index(c) for c in TABLE_COLUMNS}
+    out: dict[str, list[float]] = {c: [] for c in TABLE_COLUMNS}
+    for (number, _), row in zip(lines[1:], rows[1:], strict=True):
+        for c, j in where.items():
+            cell = row[j].strip() if j < len(row) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                raise StudyFileError(
+                    f"{p}: line {number}: {c} must be a finite number, got {cell!r}",
+                    ValueError(cell),
+                )
+            out[c].append(value)
+    return out

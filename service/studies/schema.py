@@ -5,7 +5,9 @@ the study is the Cartesian product of the grid's axes (:mod:`service.studies.gri
 blocks themselves are derived from the worker's types (:mod:`service.studies.specs`).
 Non-dimensional studies vary the parameters of docs/model.md §3; physical studies
 (docs/model.md §8) give a ``physical:`` block in SI units and vary ``frequency_hz`` and any
-physical field.
+physical field; their base amplitude may be given per frequency (a list aligned with
+``frequency_hz``, or a table whose frequencies are the grid's; docs/experiment.md), and each
+point then maps with its own frequency's amplitude.
 
 Validation reports every problem it can find in one go, each with its path in the file
 (``grid.gamma_r.num: ...``), as a :class:`StudyError` (a ``ValueError``). Grid sizes are
@@ -30,7 +32,14 @@ from pydantic import Field, PrivateAttr, ValidationError
 
 from service.studies.files import read_study_file
 from service.studies.grid import AXIS_TAGS, Range, StrictModel, axis_size, axis_values
-from service.studies.specs import Grid, ModelSpec, PhysicalSpec, SolverSpec
+from service.studies.specs import (
+    PER_FREQUENCY_FIELDS,
+    AmplitudeTable,
+    Grid,
+    ModelSpec,
+    PhysicalSpec,
+    SolverSpec,
+)
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
 from worker.model import CellParams
 from worker.physical import CELL_FIELDS, PhysicalCell
@@ -87,6 +96,7 @@ class Study(StrictModel):
     physical: PhysicalSpec | None = None
     grid: Grid
     _axes: dict[str, np.ndarray] | None = PrivateAttr(None)
+    _amplitudes: np.ndarray | None = PrivateAttr(None)
 
     # ---------------------------------------------------------------- identity
 
@@ -147,31 +157,69 @@ class Study(StrictModel):
         """Number of points."""
         return math.prod(self.sizes().values())
 
-    def coords_at(self, start: int, stop: int) -> dict[str, np.ndarray]:
-        """Axis values of points ``start:stop`` (flat C-order index), name -> array."""
+    def _indices(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        """Each axis's value index of points ``start:stop`` (flat C-order index)."""
         axes = self.axes()
         shape = tuple(v.size for v in axes.values())
         idx = np.unravel_index(np.arange(start, stop), shape)
-        return {k: v[i] for (k, v), i in zip(axes.items(), idx, strict=True)}
+        return dict(zip(axes, idx, strict=True))
+
+    def coords_at(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        """Axis values of points ``start:stop`` (flat C-order index), name -> array."""
+        axes = self.axes()
+        return {k: axes[k][i] for k, i in self._indices(start, stop).items()}
+
+    def base_amplitudes_m(self) -> np.ndarray | None:
+        """A physical study's base amplitude at each value of ``frequency_hz`` (in the axis's
+        order) when it is given per frequency, else None."""
+        p = self.physical
+        if p is None or all(getattr(p, k) is None for k in PER_FREQUENCY_FIELDS):
+            return None
+        if self._amplitudes is None:
+            freqs = self.axes()["frequency_hz"]
+            if p.base_amplitude_table is not None:
+                amps, problems = _aligned(freqs, p.base_amplitude_table)
+                if amps is None:  # parse_study refuses this; a hand-built Study may not
+                    raise StudyError(problems)
+            else:
+                amps = np.asarray(p.base_amplitude_per_frequency_m, dtype=np.float64)
+            amps.flags.writeable = False
+            self._amplitudes = amps
+        return self._amplitudes
+
+    def cells(self, start: int, stop: int) -> list[tuple[PhysicalCell, float]]:
+        """A physical study's points ``start:stop`` as (SI cell, frequency in Hz) pairs."""
+        assert self.physical is not None, "cells() is for physical studies"
+        cols = self.coords_at(start, stop)
+        base = self.physical.cell_fields()
+        amps = self.base_amplitudes_m()
+        # Per-frequency amplitudes: each point takes its frequency's value as U_g.
+        at_f = None if amps is None else amps[self._indices(start, stop)["frequency_hz"]]
+        out = []
+        for i in range(stop - start):
+            fields = {**base, **{k: float(v[i]) for k, v in cols.items()}}
+            if at_f is not None:
+                fields["base_amplitude_m"] = float(at_f[i])
+            f = fields.pop("frequency_hz")
+            out.append((PhysicalCell(**fields), f))
+        return out
+
+    def length_scales_m(self, start: int, stop: int) -> np.ndarray:
+        """A physical study's length unit ``B = U_g/(θγ_s)`` (m) at points ``start:stop``:
+        model lengths (``amplitude``, gaps) times B are metres."""
+        return np.array([c.length_scale_m(f) for c, f in self.cells(start, stop)])
 
     def points(self, start: int, stop: int) -> list[dict[str, Any]]:
         """``CellParams`` keyword dicts of points ``start:stop`` (flat C-order index)."""
-        cols = self.coords_at(start, stop)
-        n = stop - start
         m = self.model
         common: dict[str, Any] = {"modes": m.modes, "coupling": m.coupling}
         if m.xi_b is not None:
             common["xi_b"] = m.xi_b
         out = []
         if self.is_physical:
-            assert self.physical is not None
-            base = self.physical.model_dump(exclude_none=True)
-            for i in range(n):
-                fields = {**base, **{k: float(v[i]) for k, v in cols.items()}}
-                f = fields.pop("frequency_hz")
-                p = PhysicalCell(**fields).to_model(f)
-                out.append({**p, **common})
-            return out
+            return [{**c.to_model(f), **common} for c, f in self.cells(start, stop)]
+        cols = self.coords_at(start, stop)
+        n = stop - start
         for i in range(n):
             row = {k: float(v[i]) for k, v in cols.items()}
             if "gap" in row:
@@ -214,6 +262,10 @@ def _presence_problems(given: set[str]) -> list[tuple[str, str]]:
     return out
 
 
+#: The PhysicalCell fields that drive the base (exactly one of them, or of PER_FREQUENCY_FIELDS).
+_EXCITATION_FIELDS = ("base_amplitude_m", "base_acceleration_m_s2")
+
+
 def _grid_problems(
     grid: Grid,
     physical: PhysicalSpec | None,
@@ -245,7 +297,7 @@ def _grid_problems(
             out.append(("grid.frequency_hz", "is required in a physical study"))
         if explicit_xi:
             out.append(("model.xi", "a physical study takes physical.damping_ratio instead"))
-        base = physical.model_dump(exclude_none=True)
+        base = physical.cell_fields()
         for k in CELL_FIELDS:
             if k not in base and k not in given:
                 out.append((f"physical.{k}", "is required (in physical: or as a grid axis)"))
@@ -253,23 +305,35 @@ def _grid_problems(
             k in base or k in given for k in ("gap_m", "gap2_m")
         ):
             out.append(("physical.gap_m", "is required (or gap1_m and gap2_m)"))
-        excitation = [
-            k for k in ("base_amplitude_m", "base_acceleration_m_s2") if k in base or k in given
-        ]
+        per_frequency = [k for k in PER_FREQUENCY_FIELDS if getattr(physical, k) is not None]
+        excitation = [k for k in _EXCITATION_FIELDS if k in base or k in given] + per_frequency
         if len(excitation) != 1:
+            # The message lists the new per-frequency fields only to a study that uses one,
+            # so that the long-standing message of a scalar study stays as it was.
+            choices = "base_amplitude_m and base_acceleration_m_s2"
+            if per_frequency:
+                choices = "base_amplitude_m, base_acceleration_m_s2, " + ", ".join(
+                    PER_FREQUENCY_FIELDS
+                )
             out.append(
-                ("physical.base_amplitude_m", "give exactly one of base_amplitude_m and "
-                 f"base_acceleration_m_s2, got {', '.join(excitation) or 'neither'}")
+                ("physical.base_amplitude_m", f"give exactly one of {choices}, got "
+                 f"{', '.join(excitation) or 'neither'}")
             )  # fmt: skip
+        amplitudes: np.ndarray | None = None
+        if len(excitation) == 1 and per_frequency and "frequency_hz" in given:
+            amplitudes, found = _per_frequency_problems(physical, given, limit)
+            out += found
         if not out:
             first = {k: _ends(v)[0] for k, v in given.items()}
             first.pop("frequency_hz", None)
+            if amplitudes is not None:
+                first["base_amplitude_m"] = float(amplitudes[0])
             try:
                 PhysicalCell(**{**base, **first})
             except (TypeError, ValueError) as exc:
                 out.append(("physical", str(exc)))
             else:
-                out += _model_range_problems(base, given)
+                out += _model_range_problems(base, given, amplitudes)
     # Sizes, not values: a grid of 10⁹ points is refused without building an axis.
     sizes = {k: axis_size(v) for k, v in given.items()}
     size = math.prod(sizes.values()) if given else 0
@@ -288,18 +352,96 @@ def _ends(axis: Any) -> tuple[float, float]:
     return (float(axis), float(axis))
 
 
+#: Relative tolerance of matching a table's frequencies to the grid's (grid coordinates keep
+#: 12 significant digits; a table read from a file keeps what it wrote).
+_FREQUENCY_RTOL = 1e-9
+
+
+def _listed(values: Sequence[float], most: int = 5) -> str:
+    shown = ", ".join(f"{v:g}" for v in values[:most])
+    return shown + (f" and {len(values) - most} more" if len(values) > most else "")
+
+
+def _aligned(freqs: np.ndarray, table: AmplitudeTable) -> tuple[np.ndarray | None, list[str]]:
+    """A table's amplitudes in the order of the grid's frequencies ``freqs``, or None and
+    what does not match: grid frequencies without a row, rows off the grid."""
+    tf = np.asarray(table.frequency_hz, dtype=np.float64)
+    ta = np.asarray(table.base_amplitude_m, dtype=np.float64)
+    order = np.argsort(tf)
+    sorted_f = tf[order]
+    # Each grid frequency's nearest table frequency (the table's are distinct).
+    pos = np.clip(np.searchsorted(sorted_f, freqs), 1, max(sorted_f.size - 1, 1))
+    lo = np.clip(pos - 1, 0, sorted_f.size - 1)
+    hi = np.clip(pos, 0, sorted_f.size - 1)
+    near = np.where(np.abs(sorted_f[lo] - freqs) <= np.abs(sorted_f[hi] - freqs), lo, hi)
+    hit = np.abs(sorted_f[near] - freqs) <= _FREQUENCY_RTOL * np.abs(freqs)
+    problems = []
+    if not np.all(hit):
+        missing = freqs[~hit].tolist()
+        problems.append(
+            f"grid.frequency_hz has {_listed(missing)} Hz, which the table has no row for; "
+            "the table must have one row for every frequency of the grid, and only those "
+            f"(its {tf.size} rows span {tf.min():g} … {tf.max():g} Hz)"
+        )
+    used = np.zeros(tf.size, dtype=bool)
+    used[order[near[hit]]] = True
+    if not np.all(used):
+        extra = np.flatnonzero(~used)
+        rows = [f"frequency_hz[{i}] = {tf[i]:g}" for i in extra[:5]]
+        more = f" and {extra.size - 5} more" if extra.size > 5 else ""
+        problems.append(
+            f"table rows {', '.join(rows)}{more} Hz are not on grid.frequency_hz; the table "
+            "and the grid must have the same frequencies (add them to the grid or drop the rows)"
+        )
+    if problems:
+        return None, problems
+    return ta[order[near]], []
+
+
+def _per_frequency_problems(
+    physical: PhysicalSpec, given: dict[str, Any], limit: int
+) -> tuple[np.ndarray | None, list[tuple[str, str]]]:
+    """Per-frequency amplitudes against ``grid.frequency_hz``: one per frequency, or a table
+    with the grid's frequencies. Returns the amplitudes in the axis's order when they fit."""
+    axis = given["frequency_hz"]
+    n = axis_size(axis)
+    values = physical.base_amplitude_per_frequency_m
+    if values is not None:
+        if len(values) != n:
+            return None, [(
+                "physical.base_amplitude_per_frequency_m",
+                f"has {len(values)} values, but grid.frequency_hz has {n:,}; give one "
+                "amplitude per frequency, in the order of grid.frequency_hz",
+            )]  # fmt: skip
+        return np.asarray(values, dtype=np.float64), []
+    table = physical.base_amplitude_table
+    assert table is not None
+    if n > limit:  # the point limit is reported below; do not build a huge axis to match it
+        return None, []
+    amps, problems = _aligned(axis_values(axis), table)
+    source = f" (file {table.file})" if table.file else ""
+    return amps, [("physical.base_amplitude_table", m + source) for m in problems]
+
+
 #: The most varying physical axes whose corners (2**n) are checked before a study runs.
 _MAX_CORNER_AXES = 12
 
 
-def _model_range_problems(base: dict[str, Any], given: dict[str, Any]) -> list[tuple[str, str]]:
+def _model_range_problems(
+    base: dict[str, Any], given: dict[str, Any], amplitudes: np.ndarray | None = None
+) -> list[tuple[str, str]]:
     """The model parameters a physical grid maps to, checked against the model's ranges.
 
     Every model parameter is a product of powers of the physical fields (θ = ρbhL/m_o,
     σ = Eh²m_o/(12ρL⁴k), γ_r = 2πf/√(k/m_o), g̃ = gθ/U_g), so over a box of physical values
     it is largest and smallest at the box's corners: checking the corners checks every point.
+    Amplitudes given per frequency are paired with their frequency, but no model parameter
+    depends on both (γ_r on f alone, g̃ on U_g alone), so treating their ends as one more axis
+    of the box gives the same extremes.
     """
     ends = {k: _ends(v) for k, v in given.items()}
+    if amplitudes is not None:
+        ends["base_amplitude_m"] = (float(amplitudes.min()), float(amplitudes.max()))
     varying = [k for k, (lo, hi) in ends.items() if lo != hi]
     if len(varying) > _MAX_CORNER_AXES:  # too many corners; points are checked as they run
         return []
@@ -395,6 +537,9 @@ def parse_study(data: Any, *, max_points: int | None = None, source: str = "stud
                 else:
                     explicit_xi = isinstance(data.get("model"), Mapping) and "xi" in data["model"]
                     seen = {p for p, _ in problems}
+                    if bad & {*_EXCITATION_FIELDS, *PER_FREQUENCY_FIELDS}:
+                        # a bad excitation field is not also "neither given"
+                        seen.add("physical.base_amplitude_m")
                     problems += [
                         pr
                         for pr in _grid_problems(

@@ -41,13 +41,15 @@ from service.studies.grid import (
 from service.studies.variables import AXES, AXIS_PARAMETER, MODEL_AXES, PHYSICAL_AXES
 from worker.checks import bounds_text, check_field, out_of_bounds, shown, violation
 from worker.model import CellParams
-from worker.physical import FREQUENCY_HZ, PhysicalCell
+from worker.physical import BASE_AMPLITUDE_M, FREQUENCY_HZ, PhysicalCell
 from worker.simulate import SolverSettings
 
 __all__ = [
     "AXIS_BOUNDS",
     "MAX_STEPS_PER_POINT",
+    "PER_FREQUENCY_FIELDS",
     "STUDY_SOLVER_CAPS",
+    "AmplitudeTable",
     "Grid",
     "ModelSpec",
     "PhysicalSpec",
@@ -242,11 +244,130 @@ SolverSpec = spec_model(
     caps=STUDY_SOLVER_CAPS,
 )
 
+# --------------------------------------------------------------------------- physical
+
+
+def _checked_values(name: str, meta: Mapping[str, Any], values: list[float]) -> list[float]:
+    """Each value checked against ``meta``, the message naming it ``name[i]``."""
+    return [check_field(f"{name}[{i}]", v, dict(meta)) for i, v in enumerate(values)]
+
+
+#: How many rows an amplitude table may have (one per frequency; a grid axis has at most
+#: 1,000,000 values, far beyond any measured plan).
+MAX_TABLE_ROWS = 1_000_000
+
+_TABLE_HINT = (
+    "a table file is read only from a study file (impactcell run FILE, the nightly suite), "
+    "relative to it; in a definition sent as text give the rows themselves: "
+    "{frequency_hz: [...], base_amplitude_m: [...]}"
+)
+
+
+def _no_path(value: Any) -> Any:
+    # A bare path here was not read by service.studies.files (a request body, a mapping):
+    # the service never opens files a definition names.
+    if isinstance(value, str):
+        raise ValueError(f"got the file name {shown(value)}, but {_TABLE_HINT}")
+    return value
+
+
+class AmplitudeTable(StrictModel):
+    """Base displacement amplitude by frequency, as rows (``frequency_hz[i]``,
+    ``base_amplitude_m[i]``); every frequency of ``grid.frequency_hz`` has exactly one row.
+
+    A study file may name a CSV file instead (``base_amplitude_table: amplitudes.csv``, columns
+    ``frequency_hz`` and ``base_amplitude_m``, relative to the study file): reading the study
+    puts the file's rows here, with its name in ``file``, so that the table's content, not
+    only its name, is part of the definition and of the study id.
+    """
+
+    file: str | None = Field(
+        None, min_length=1, max_length=1000, description="The CSV file the rows were read from."
+    )
+    frequency_hz: list[Real] = Field(
+        min_length=1, max_length=MAX_TABLE_ROWS, description="Frequencies (Hz), distinct."
+    )
+    base_amplitude_m: list[Real] = Field(
+        min_length=1,
+        max_length=MAX_TABLE_ROWS,
+        description=_described("Base displacement amplitude U_g (m) of each row.",
+                               BASE_AMPLITUDE_M),
+    )  # fmt: skip
+
+    @field_validator("frequency_hz")
+    @classmethod
+    def _frequencies(cls, values: list[float]) -> list[float]:
+        out = _checked_values("frequency_hz", FREQUENCY_HZ, values)
+        seen: set[float] = set()
+        for v in out:
+            if v in seen:  # two amplitudes for one frequency: which one is meant?
+                raise ValueError(f"frequencies must be distinct, got {v:g} Hz twice")
+            seen.add(v)
+        return out
+
+    @field_validator("base_amplitude_m")
+    @classmethod
+    def _amplitudes(cls, values: list[float]) -> list[float]:
+        return _checked_values("base_amplitude_m", BASE_AMPLITUDE_M, values)
+
+    @model_validator(mode="after")
+    def _rows(self) -> AmplitudeTable:
+        nf, na = len(self.frequency_hz), len(self.base_amplitude_m)
+        if nf != na:
+            raise ValueError(
+                f"frequency_hz has {nf} values and base_amplitude_m {na}; a table has one "
+                "amplitude per frequency"
+            )
+        return self
+
+
+class _PhysicalBase(StrictModel):
+    """The per-frequency base amplitude, beside PhysicalCell's own (scalar) fields."""
+
+    base_amplitude_per_frequency_m: list[Real] | None = Field(
+        None,
+        min_length=1,
+        max_length=MAX_TABLE_ROWS,
+        description=_described(
+            "Base displacement amplitude U_g (m) at each frequency, one value per value of "
+            "grid.frequency_hz and in its order (instead of base_amplitude_m).",
+            BASE_AMPLITUDE_M,
+        ),
+    )
+    base_amplitude_table: Annotated[AmplitudeTable, BeforeValidator(_no_path)] | None = Field(
+        None,
+        description=_described(
+            "Base displacement amplitude U_g (m) by frequency, as rows {frequency_hz, "
+            "base_amplitude_m} or, in a study file, a CSV file with those columns (instead of "
+            "base_amplitude_m); its frequencies are those of grid.frequency_hz.",
+            BASE_AMPLITUDE_M,
+        ),
+    )
+
+    @field_validator("base_amplitude_per_frequency_m")
+    @classmethod
+    def _per_frequency(cls, values: list[float] | None) -> list[float] | None:
+        if values is None:
+            return None
+        return _checked_values("base_amplitude_per_frequency_m", BASE_AMPLITUDE_M, values)
+
+    def cell_fields(self) -> dict[str, Any]:
+        """The fields given that are :class:`PhysicalCell`'s own (not the per-frequency ones)."""
+        return self.model_dump(exclude_none=True, exclude=set(PER_FREQUENCY_FIELDS))
+
+
+#: The physical block's per-frequency base amplitude fields (not PhysicalCell fields: a point
+#: gets its frequency's value as ``base_amplitude_m``).
+PER_FREQUENCY_FIELDS: tuple[str, ...] = tuple(_PhysicalBase.model_fields)
+
 # Every PhysicalCell field, optional: a grid axis may give it instead.
 PhysicalSpec = spec_model(
     "PhysicalSpec",
     PhysicalCell,
-    "A cell in SI units (worker.physical.PhysicalCell); grid axes override fields.",
+    "A cell in SI units (worker.physical.PhysicalCell); grid axes override fields. The base "
+    "amplitude may also be given per frequency (base_amplitude_per_frequency_m, "
+    "base_amplitude_table).",
+    base=_PhysicalBase,
     optional=True,
 )
 

@@ -32,6 +32,7 @@ __all__ = [
     "OUTCOMES",
     "PHYSICAL_AXES",
     "PHYSICAL_FIELDS",
+    "PHYSICAL_VARIABLES",
     "VARIABLES",
     "AxisInfo",
     "Variable",
@@ -147,6 +148,18 @@ VARIABLES: dict[str, Variable] = {
         "standard error of the transmittance of an irregular or unsettled point (batch means "
         "over measurement windows); missing for linear and periodic points",
     ),
+    "transmittance_linear_db": Variable(
+        "transmittance", "float", "dB",
+        "linear reference Gamma_lin: transmittance of the same cell with the stops removed "
+        "(closed form, docs/model.md section 7); a property of the cell, kept at failed points; "
+        "missing where no closed form exists (undamped resonance)",
+        mask=False,
+    ),
+    "impact_effect_db": Variable(
+        "transmittance", "float", "dB",
+        "impact effect Gamma - Gamma_lin: what the stops change; negative where impacts add "
+        "attenuation, exactly 0 at linear (impact-free) points; missing where either is",
+    ),
     "amplitude": Variable(
         "transmittance", "float", "1",
         "displacement amplitude A_s of the outer mass in units of B = U_g / (theta gamma_s)",
@@ -199,6 +212,17 @@ VARIABLES: dict[str, Variable] = {
     "reason": Variable("", "str", "1", "why the point failed or is unsettled, or a caveat of an "
                        "irregular point; empty otherwise", mask=False),
     "wall_s": Variable("", "float", "s", "wall-clock time of the point's kernel", mask=False),
+}  # fmt: skip
+
+
+# Variables a physical study's dataset derives from the points (not reported by a point): in
+# metres, with the length unit B = U_g / (theta gamma_s) of each point (docs/model.md section 8).
+PHYSICAL_VARIABLES: dict[str, Variable] = {
+    "amplitude_m": Variable(
+        "transmittance", "float", "m",
+        "displacement amplitude of the outer mass in metres, amplitude times B = U_g / "
+        "(theta gamma_s) (docs/model.md section 8)",
+    ),
 }  # fmt: skip
 
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import io
 import os
 import signal
 import subprocess
 import sys
 import time
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import httpx
@@ -19,6 +22,7 @@ __all__ = [
     "FAST_SOLVER",
     "SLOW_SOLVER",
     "Server",
+    "run_cli",
     "TINY",
     "TINY_EULER",
     "comparable",
@@ -134,3 +138,16 @@ class Server:
             return self.proc.wait(60)
         finally:
             self.log.close()
+
+
+def run_cli(*args: str) -> SimpleNamespace:
+    """The CLI in this process: exit status, stdout and stderr as a subprocess would give."""
+    from service.cli import main  # here: the helpers load without the CLI otherwise
+
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:  # argparse's own errors
+            code = exc.code if isinstance(exc.code, int) else 2
+    return SimpleNamespace(returncode=code or 0, stdout=out.getvalue(), stderr=err.getvalue())

@@ -203,3 +203,32 @@ def test_a_streamed_download_raises_the_server_error_and_leaves_no_file(
     with pytest.raises(NotFound, match="no route"):
         c.dataset("abc12345")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_bandgap_map_of_another_variable_and_the_default_threshold() -> None:
+    doc = {
+        "x": "gamma_r", "y": None, "coords": {"gamma_r": [1.0, 2.0, 3.0]},
+        "variable": {"name": "impact_effect_db", "units": "dB", "long_name": "impact effect"},
+        "impact_effect_db": [-2.0, None, 0.5], "attenuating": [True, False, False],
+        "threshold_db": -1.0, "edges": [{"y": None, "bands": [[1.0, 1.5]], "kinds": []}],
+        "slice": {},
+    }  # fmt: skip
+    svc = Recorder({("GET", "/studies/abc12345/bandgap"): httpx.Response(200, json=doc)})
+    c = svc.client()
+    ds = c.bandgap_map("abc12345", variable="impact_effect_db")
+    params = svc.seen[-1].url.params
+    # no threshold sent: the service's default for the variable (-1 dB here) applies
+    assert params["variable"] == "impact_effect_db" and "threshold_db" not in params
+    assert ds.attrs["variable"] == "impact_effect_db" and ds.attrs["threshold_db"] == -1.0
+    np.testing.assert_array_equal(ds["impact_effect_db"].values, [-2.0, np.nan, 0.5])
+    assert ds["impact_effect_db"].attrs == {"units": "dB", "long_name": "impact effect"}
+    c.bandgap_json("abc12345", threshold_db=0.5)
+    params = svc.seen[-1].url.params
+    assert params["threshold_db"] == "0.5" and params["variable"] == "transmittance_db"
+    # an older service's document names no variable: it is Γ
+    old = {k: v for k, v in doc.items() if k not in ("variable", "impact_effect_db")}
+    old["transmittance_db"] = [1.0, 2.0, None]
+    svc.answers[("GET", "/studies/abc12345/bandgap")] = httpx.Response(200, json=old)
+    ds = c.bandgap_map("abc12345")
+    assert ds.attrs["variable"] == "transmittance_db"
+    np.testing.assert_array_equal(ds["transmittance_db"].values, [1.0, 2.0, np.nan])

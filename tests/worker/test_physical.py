@@ -12,8 +12,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from worker.checks import check_field
 from worker.model import betas as cantilever_betas
-from worker.physical import TABLE1_FREQUENCIES_HZ, PhysicalCell
+from worker.physical import BASE_AMPLITUDE_M, TABLE1_FREQUENCIES_HZ, PhysicalCell
 
 # Positive, finite, physically plausible magnitudes for property tests.
 _pos = st.floats(min_value=1e-4, max_value=1e4, allow_nan=False, allow_infinity=False)
@@ -438,3 +439,30 @@ def test_base_excitation_exactly_one() -> None:
         ValueError, match=r"got base_amplitude_m=0\.0005, base_acceleration_m_s2=9\.81"
     ):
         _cell(base_acceleration_m_s2=9.81)
+
+
+def test_per_frequency_amplitudes_follow_the_fields_rule() -> None:
+    # A study's per-frequency amplitudes are checked by this rule and then set point by point
+    # as base_amplitude_m: one rule, so a value the list accepts the cell accepts too.
+    meta = {f.name: dict(f.metadata) for f in dataclasses.fields(PhysicalCell)}
+    assert {k: v for k, v in meta["base_amplitude_m"].items() if k != "optional"} == (
+        BASE_AMPLITUDE_M
+    )
+    for value in (1e-12, 1e-3, 100.0):
+        assert _cell(base_amplitude_m=value).base_amplitude_m == check_field(
+            "u", value, BASE_AMPLITUDE_M
+        )
+    for value in (0.0, 1e-13, 101.0):
+        with pytest.raises(ValueError, match="^u must be"):
+            check_field("u", value, BASE_AMPLITUDE_M)
+        with pytest.raises(ValueError, match="^base_amplitude_m must be"):
+            _cell(base_amplitude_m=value)
+
+
+def test_length_scale_is_u_g_over_theta_per_amplitude() -> None:
+    # B = U_g/(θγ_s) with γ_s = 1: amplitudes in metres are amplitude × B (docs/model.md §8).
+    for u in (2.5e-4, 1e-3):
+        cell = PhysicalCell.table1(damping_ratio=0.03, base_amplitude_m=u)
+        theta = 1250.0 * 0.01 * 0.0025 * 0.15 / 0.01667
+        assert cell.length_scale_m(23.0) == pytest.approx(u / theta, rel=1e-12)
+        assert cell.to_model(23.0)["g1"] == pytest.approx(1e-3 / cell.length_scale_m(23.0))

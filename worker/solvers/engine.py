@@ -29,6 +29,10 @@ is proven:
     method's own reason, or over the point's budget (``PointLimits``: wall time or steps);
     values are ``None``.
 
+Every result also carries the linear reference ``transmittance_linear_db`` (Γ_lin: the closed
+form of the same cell without stops, ``LinearTail.steady``) and ``impact_effect_db`` = Γ − Γ_lin
+(exactly 0 for ``linear``; ``None`` where Γ or Γ_lin is missing). A ``failed`` point keeps Γ_lin.
+
 Between batches the engine checks the point's limits and the caller's ``cancelled`` callback
 (``PointCancelled``). A batch is shortened when periods are slow, so both are seen well within
 a second.
@@ -43,14 +47,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from worker.model import System
+from worker.model import SteadyState, System
 from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittance_db
 from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.linear import LinearTail
 from worker.solvers.settings import PointCancelled, PointLimits, PointResult, SolverSettings
 
-__all__ = ["DIVERGENCE_FACTOR", "MIN_WINDOWS", "mser_stats", "rre", "run_point"]
+__all__ = [
+    "DIVERGENCE_FACTOR",
+    "MIN_WINDOWS",
+    "linear_reference_db",
+    "mser_stats",
+    "rre",
+    "run_point",
+]
 
 DIVERGENCE_FACTOR = 1e6  # |x|∞ beyond this times the natural scale is divergence
 MIN_WINDOWS = 8  # windows of statistics before an irregular response may be reported
@@ -552,6 +563,30 @@ def _finite_or_none(v: float | None) -> float | None:
     return v if v is not None and math.isfinite(v) else None
 
 
+def linear_reference_db(steady: SteadyState | None) -> float | None:
+    """Γ_lin: the closed-form transmittance of the cell without stops, or ``None`` where there
+    is none (an undamped resonance, or no forcing: a zero amplitude has no dB value)."""
+    if steady is None:
+        return None
+    amp = steady.amplitude
+    if not (math.isfinite(amp) and amp > 0.0):
+        return None
+    return _finite_or_none(steady.transmittance_db)
+
+
+def _with_reference(res: PointResult, tail: LinearTail) -> PointResult:
+    """``res`` with Γ_lin and the impact effect Γ − Γ_lin filled in."""
+    lin = linear_reference_db(tail.steady)
+    res.transmittance_linear_db = lin
+    if lin is None or res.transmittance_db is None:
+        res.impact_effect_db = None
+    elif res.outcome == "linear":
+        res.impact_effect_db = 0.0  # Γ is the closed form itself: exactly no effect
+    else:
+        res.impact_effect_db = _finite_or_none(res.transmittance_db - lin)
+    return res
+
+
 def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
               settings: SolverSettings, x0: np.ndarray, history_periods: int = 0,
               limits: PointLimits | None = None,
@@ -635,6 +670,7 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
         run.advance(history_periods, False, 0, rows, samples)
     if history_periods and run is not None:
         res.history = run.history(p, kappa)
+    _with_reference(res, tail)
     res.wall_s = time.perf_counter() - t0
     return res
 

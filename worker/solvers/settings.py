@@ -147,6 +147,12 @@ class PointResult:
     ``irregular`` (window statistics converged: Γ is a mean with standard error
     ``transmittance_db_se``), ``unsettled`` (the budget ran out first; numbers kept, not
     proven) or ``failed`` (``reason`` says why).
+
+    ``transmittance_linear_db`` is Γ_lin, the closed-form Γ of the same cell with the stops
+    removed (docs/model.md §7), and ``impact_effect_db`` = Γ − Γ_lin, what the impacts change
+    (exactly 0 for a ``linear`` point). Both are ``None`` where no closed form exists (an
+    undamped resonance). Γ_lin is a property of the cell, not a measurement, so a ``failed``
+    point keeps it when it exists; its ``impact_effect_db`` is ``None``.
     """
 
     outcome: str
@@ -168,6 +174,8 @@ class PointResult:
     reason: str
     method: str
     steps_per_period: int
+    transmittance_linear_db: float | None = None
+    impact_effect_db: float | None = None
     history: dict[str, np.ndarray] | None = field(default=None, repr=False)
 
     @property
@@ -189,9 +197,12 @@ class PointResult:
         return out
 
     @classmethod
-    def failure(cls, method: str, reason: str, **counts: Any) -> PointResult:
+    def failure(
+        cls, method: str, reason: str, linear_db: float | None = None, **counts: Any
+    ) -> PointResult:
         """The record of a point that failed (or could not be run) with ``reason``; ``counts``
-        may give the work done (``periods``, ``steps``, …, ``steps_per_period``)."""
+        may give the work done (``periods``, ``steps``, …, ``steps_per_period``) and
+        ``linear_db`` the cell's linear reference Γ_lin (kept: it is not a measurement)."""
         work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0, steady_period=-1,
                     wall_s=0.0, steps_per_period=0)  # fmt: skip
         work.update({k: v for k, v in counts.items() if k in work})
@@ -199,4 +210,5 @@ class PointResult:
             outcome="failed", transmittance_db=None, transmittance_db_se=None, amplitude=None,
             theta_eff=None, theta_eff_slope=None, response_period=0, impacts_per_period=None,
             peak_impulse=None, floquet_multiplier=None, reason=reason, method=method, **work,
+            transmittance_linear_db=linear_db, impact_effect_db=None,
         )  # fmt: skip

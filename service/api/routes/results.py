@@ -42,11 +42,31 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
     422: {"model": ErrorOut, "description": "bad selection (names the field and the value)"},
 }
 # Query parameters with a meaning of their own; every other one selects a coordinate value.
-_RESERVED = {"variable", "nearest", "x", "y", "threshold_db", "hue", "periods", "format"}
+_RESERVED = {"variable", "reference", "nearest", "x", "y", "threshold_db", "hue", "periods",
+             "format"}  # fmt: skip
 _NETCDF = "application/x-netcdf"
 _CSV = "text/csv; charset=utf-8"
 #: The most values a JSON or CSV slice (or bandgap map) holds; beyond, 422 says how to select.
 MAX_SLICE_VALUES = 100_000
+#: What a bandgap map (``/bandgap``, ``/plots/bandgap``) can show (service.analysis.bands).
+MapVariable = Literal["transmittance_db", "transmittance_linear_db", "impact_effect_db"]
+Reference = Literal["none", "linear"]
+_REFERENCE_DOC = (
+    "linear: measure against the same cell without stops, i.e. map impact_effect_db "
+    "(Γ − Γ_lin); none (default): the variable as given"
+)
+
+
+def map_variable(variable: str, reference: str) -> str:
+    """The variable a map shows: ``reference=linear`` is the impact effect Γ − Γ_lin."""
+    if reference == "none":
+        return variable
+    if variable not in ("transmittance_db", "impact_effect_db"):
+        raise HTTPException(
+            422, f"reference=linear maps Γ − Γ_lin (impact_effect_db); it cannot be combined "
+            f"with variable={variable}"
+        )  # fmt: skip
+    return "impact_effect_db"
 
 
 class _Cache:
@@ -290,24 +310,31 @@ def bandgap(
     catalogue: CatalogueDep,
     x: Annotated[str | None, Query(max_length=64)] = None,
     y: Annotated[str | None, Query(max_length=64)] = None,
-    threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
+    threshold_db: Annotated[float | None, Query(ge=-1000, le=1000)] = None,
     nearest: bool = False,
     format: Literal["json", "csv"] = "json",  # noqa: A002 - the query parameter's name
+    variable: MapVariable = "transmittance_db",
+    reference: Annotated[Reference, Query(description=_REFERENCE_DOC)] = "none",
 ) -> Response:
-    """The bandgap map: Γ over x × y, where Γ < threshold, and the band edges in x per y.
+    """The bandgap map: a variable over x × y, where it is below the threshold, and the band
+    edges in x per y.
 
-    Without ``x`` and ``y`` the axes are those of the bandgap plot (x the frequency axis, y
-    the first other varying axis with few values); every other varying axis not selected is
-    fixed at its first value and listed in ``slice`` (``default: true``). ``format=csv``
-    gives the band edges, one row per band.
+    ``variable``: ``transmittance_db`` (Γ, default threshold 0 dB), ``transmittance_linear_db``
+    (Γ_lin, the same cell without stops, 0 dB) or ``impact_effect_db`` (Γ − Γ_lin, −1 dB:
+    bands are where impacts add more than 1 dB of attenuation). Without ``x`` and ``y`` the
+    axes are those of the bandgap plot (x the frequency axis, y the first other varying axis
+    with few values); every other varying axis not selected is fixed at its first value and
+    listed in ``slice`` (``default: true``). ``format=csv`` gives the band edges, one row per
+    band. ``reference=linear`` is the same as ``variable=impact_effect_db``.
     """
+    variable = map_variable(variable, reference)
     ds, path = load_dataset(settings, catalogue, study_id)
     try:
         view = default_view(ds, "transmittance_db", x, y, coords_of(request))
         sizes = {a: ds.sizes[a] for a in (view.y, view.x) if a is not None and a in ds.sizes}
         _check_size(study_id, "the bandgap map", sizes, ds)
         m = bandgap_map(ds, view.x, view.y, threshold_db=threshold_db, sel=view.sel,
-                        nearest=nearest)  # fmt: skip
+                        nearest=nearest, variable=variable)  # fmt: skip
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
     if format == "csv":
@@ -339,16 +366,20 @@ def plot(
     x: Annotated[str | None, Query(max_length=64)] = None,
     y: Annotated[str | None, Query(max_length=64)] = None,
     hue: Annotated[str | None, Query(max_length=64)] = None,
-    threshold_db: Annotated[float, Query(ge=-1000, le=1000)] = 0.0,
+    threshold_db: Annotated[float | None, Query(ge=-1000, le=1000)] = None,
     nearest: bool = False,
+    variable: MapVariable = "transmittance_db",
+    reference: Annotated[Reference, Query(description=_REFERENCE_DOC)] = "none",
 ) -> Response:
-    """A figure, PNG or SVG: transmittance (Fig. 5a style), bandgap map, or effective mass
-    (Fig. 6). Needs no parameters: x defaults to the frequency axis, the hue (transmittance)
-    or y (bandgap) to the first other varying axis with few values, and every other varying
-    axis is fixed at its first value, named in the title and the ``X-Impactcell-Fixed``
-    header (JSON)."""
+    """A figure, PNG or SVG: transmittance (Fig. 5a style, with the linear reference Γ_lin
+    dashed), bandgap map (of ``variable``, as in ``/bandgap``), or effective mass (Fig. 6).
+    Irregular, unsettled and failed points are marked and counted in the legend. Needs no
+    parameters: x defaults to the frequency axis, the hue (transmittance) or y (bandgap) to
+    the first other varying axis with few values, and every other varying axis is fixed at its
+    first value, named in the title and the ``X-Impactcell-Fixed`` header (JSON)."""
     from service.analysis import plots
 
+    variable = map_variable(variable, reference)
     ds, _path = load_dataset(settings, catalogue, study_id)
     sel = coords_of(request)
     try:
@@ -362,7 +393,8 @@ def plot(
                                              fmt=fmt)  # fmt: skip
         else:
             v = default_view(ds, "transmittance_db", x, y, sel)
-            m = bandgap_map(ds, v.x, v.y, threshold_db=threshold_db, sel=v.sel, nearest=nearest)
+            m = bandgap_map(ds, v.x, v.y, threshold_db=threshold_db, sel=v.sel, nearest=nearest,
+                            variable=variable)  # fmt: skip
             image = plots.bandgap_png(m, fixed=v.fixed, fmt=fmt)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None

@@ -405,3 +405,45 @@ def test_real_study(real: xr.Dataset) -> None:
     assert o["flag_values"] == [0, 1, 2, 3, 4]
     assert o["flag_meanings"][o["values"][0]] == "failed"
     assert "flag_meanings" not in s
+
+
+def test_real_study_linear_reference_and_impact_effect_maps(real: xr.Dataset) -> None:
+    from service.studies.variables import outcome_names
+
+    for name, words in (
+        ("transmittance_linear_db", "stops removed"),
+        ("impact_effect_db", "Gamma - Gamma_lin"),
+    ):
+        assert real[name].attrs["units"] == "dB" and words in real[name].attrs["long_name"]
+    outcomes = outcome_names(real["outcome"])
+    effect = real["impact_effect_db"].values
+    assert (effect[outcomes == "linear"] == 0.0).all()
+    # the failed point keeps the cell's reference (a closed form), but has no effect
+    failed = real.sel(gamma_r=0.2, gap=0.1)
+    assert np.isfinite(float(failed["transmittance_linear_db"])) and np.isnan(
+        float(failed["impact_effect_db"])
+    )
+    # Γ − Γ_lin where both exist
+    both = ~np.isnan(effect)
+    diff = real["transmittance_db"].values - real["transmittance_linear_db"].values
+    np.testing.assert_allclose(effect[both], diff[both], atol=1e-12)
+
+    m = bandgap_map(real, "gamma_r", "gap", variable="impact_effect_db")
+    out = bandgap_json(m)
+    json.dumps(out, allow_nan=False)
+    assert out["variable"]["name"] == "impact_effect_db" and out["threshold_db"] == -1.0
+    assert "impacts attenuate over 1 dB more" in out["threshold"]["meaning"]
+    assert out["impact_effect_db"][0][0] is None and "transmittance_db" not in out
+    np.testing.assert_array_equal(m["attenuating"].values, (m["impact_effect_db"] < -1.0).values)
+    lin = bandgap_map(real, "gamma_r", "gap", variable="transmittance_linear_db", threshold_db=0)
+    # the cell without stops does not depend on the gap (paper coupling): the same bands
+    edges = bandgap_json(lin)["edges"]
+    assert edges[0]["bands"] == edges[1]["bands"] and edges[0]["bands"]
+    with pytest.raises(AnalysisError, match="cannot be mapped; variables are transmittance_db"):
+        bandgap_map(real, "gamma_r", "gap", variable="theta_eff")
+    old = real.drop_vars(["transmittance_linear_db", "impact_effect_db"])  # an older file
+    with pytest.raises(AnalysisError, match="made before the linear reference"):
+        bandgap_map(old, "gamma_r", "gap", variable="impact_effect_db")
+    assert bandgap_json(bandgap_map(old, "gamma_r", "gap"))["variable"]["name"] == (
+        "transmittance_db"
+    )

@@ -180,3 +180,159 @@ def test_real_study_pngs(tmp_path: Path) -> None:
     _check_png(transmittance_png(ds, hue="gap"))
     _check_png(bandgap_png(bandgap_map(ds, "gamma_r", "gap")))
     _check_png(effective_mass_png(ds, {"gap": 0.1}))
+
+
+# --------------------------------------------------------------------------- what figures show
+
+
+def _with_outcomes() -> xr.Dataset:
+    """The synthetic results with outcomes (a few irregular, unsettled and failed points at
+    known places), the linear reference and the impact effect."""
+    ds = _synthetic()
+    shape = ds["transmittance_db"].shape
+    codes = np.zeros(shape, dtype=np.int8)  # linear
+    codes[:, :, 20:25] = 1  # periodic
+    codes[0, 1, [30, 31, 32]] = 2  # irregular at θ = 0.3, gap 0.1
+    codes[3, 1, 40] = 2
+    codes[1, 1, 45] = 3  # unsettled
+    codes[2, 1, 10] = 4  # failed: the NaN of _synthetic
+    ds["outcome"] = (
+        ds["transmittance_db"].dims,
+        codes,
+        {"flag_values": np.arange(5, dtype=np.int8),
+         "flag_meanings": "linear periodic irregular unsettled failed"},
+    )  # fmt: skip
+    lin = ds["transmittance_db"].isel(gap=-1, drop=True) + 3.0  # independent of the gap
+    ds["transmittance_linear_db"] = lin.broadcast_like(ds["transmittance_db"]).transpose(
+        *ds["transmittance_db"].dims
+    )
+    ds["impact_effect_db"] = ds["transmittance_db"] - ds["transmittance_linear_db"]
+    return ds
+
+
+def _legend_texts(legend) -> list[str]:
+    return [t.get_text() for t in legend.get_texts()]
+
+
+def _gid(ax, gid: str) -> list:
+    return [a for a in ax.get_lines() if a.get_gid() == gid]
+
+
+def test_transmittance_marks_and_counts_outcomes_and_draws_the_linear_reference() -> None:
+    from service.analysis.plots import transmittance_figure
+
+    ds = _with_outcomes()
+    fig = transmittance_figure(ds, {"theta": 0.3}, hue="gap")
+    ax = fig.axes[0]
+    texts = _legend_texts(ax.get_legend())
+    assert "irregular (4)" in texts and "unsettled (1)" in texts and "failed (1)" in texts
+    assert "Γ_lin: the cell without stops" in texts
+    (irr,) = _gid(ax, "outcome-irregular")
+    gr = ds["gamma_r"].values
+    # on the curve, at the right points: x and Γ of the irregular points
+    np.testing.assert_allclose(sorted(irr.get_xdata()), sorted([*gr[[30, 31, 32]], gr[40]]))
+    g = ds["transmittance_db"].sel(theta=0.3).values
+    np.testing.assert_allclose(sorted(irr.get_ydata()), sorted([*g[0, [30, 31, 32]], g[3, 40]]))
+    (unset,) = _gid(ax, "outcome-unsettled")
+    assert unset.get_marker() != irr.get_marker() and list(unset.get_xdata()) == [gr[45]]
+    (fail,) = _gid(ax, "outcome-failed")  # no value: on the strip at the bottom of the axes
+    assert list(fail.get_xdata()) == [gr[10]] and fail.get_transform() != ax.transData
+    assert len({irr.get_marker(), unset.get_marker(), fail.get_marker()}) == 3
+    # one thin dashed reference line per hue value, in the colour of that hue's curve
+    refs = _gid(ax, "linear-reference")
+    assert len(refs) == 5 and all(r.get_linestyle() == "--" for r in refs)
+    curves = [ln for ln in ax.get_lines() if str(ln.get_label()).startswith("g̃ = ")]
+    assert [c.get_color() for c in curves] == [r.get_color() for r in refs]
+    lin = ds["transmittance_linear_db"].sel(theta=0.3, gap=0.5).values
+    np.testing.assert_allclose(refs[2].get_ydata(), lin)
+    # without outcomes (an old file): the NaN is still counted, as failed
+    old = _with_outcomes().drop_vars(["outcome", "transmittance_linear_db"])
+    ax_old = transmittance_figure(old, {"theta": 0.3}, hue="gap").axes[0]
+    texts_old = _legend_texts(ax_old.get_legend())
+    assert "failed (1)" in texts_old and not any("irregular" in t for t in texts_old)
+    assert not _gid(ax_old, "linear-reference")
+
+
+def test_effective_mass_marks_outcomes() -> None:
+    from service.analysis.plots import effective_mass_figure
+
+    ax = effective_mass_figure(_with_outcomes(), {"theta": 0.3, "gap": 0.1}).axes[0]
+    assert "irregular (3)" in _legend_texts(ax.get_legend())
+    (irr,) = _gid(ax, "outcome-irregular")
+    assert len(irr.get_xdata()) == 3
+
+
+def test_bandgap_hatching_is_on_the_cells_of_the_mesh() -> None:
+    from matplotlib.collections import QuadMesh
+    from matplotlib.patches import Rectangle
+
+    from service.analysis.plots import bandgap_figure, cell_edges
+
+    ds = _with_outcomes()
+    # an irregular grid: cell edges are midpoints, not a fixed step
+    ds = ds.isel(gamma_r=np.r_[0:20, 20:59:3])
+    m = bandgap_map(ds, "gamma_r", "gap", threshold_db=-3, sel={"theta": 0.3})
+    fig = bandgap_figure(m)
+    ax = fig.axes[0]
+    xv, yv = m["gamma_r"].values, m["gap"].values
+    xe, ye = cell_edges(xv), cell_edges(yv)
+    np.testing.assert_allclose(xe[1:-1], 0.5 * (xv[1:] + xv[:-1]))
+    (mesh,) = [c for c in ax.collections if isinstance(c, QuadMesh)]
+    coords = mesh.get_coordinates()  # (ny + 1, nx + 1, 2): the cell corners drawn
+    np.testing.assert_allclose(coords[0, :, 0], xe)
+    np.testing.assert_allclose(coords[:, 0, 1], ye)
+    hatched = np.zeros((yv.size, xv.size), dtype=bool)
+    rects = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_gid() == "attenuating"]
+    assert rects and all(r.get_hatch() == "//" for r in rects)
+    for r in rects:
+        x0, y0, w, h = r.get_x(), r.get_y(), r.get_width(), r.get_height()
+        i0 = int(np.flatnonzero(np.isclose(xe, x0, rtol=0, atol=1e-12))[0])
+        i1 = int(np.flatnonzero(np.isclose(xe, x0 + w, rtol=0, atol=1e-12))[0])
+        j = int(np.flatnonzero(np.isclose(ye, y0, rtol=0, atol=1e-12))[0])
+        assert np.isclose(ye[j + 1], y0 + h, rtol=0, atol=1e-12)  # exactly one row of cells
+        assert not hatched[j, i0:i1].any()  # no cell hatched twice
+        hatched[j, i0:i1] = True
+    np.testing.assert_array_equal(hatched, m["attenuating"].transpose("gap", "gamma_r").values)
+    # outcome marks at cell centres, counted in the figure legend
+    texts = _legend_texts(fig.legends[0])
+    n_irr = int((m["outcome"] == 2).sum())
+    assert n_irr and f"irregular ({n_irr})" in texts
+    assert any(t.startswith("Γ < -3 dB (") for t in texts)
+    (irr,) = _gid(ax, "outcome-irregular")
+    assert set(irr.get_xdata()) <= set(xv) and set(irr.get_ydata()) <= set(yv)
+    # PNG and SVG of the same figure
+    _check_png(bandgap_png(m))
+    assert bandgap_png(m, fmt="svg").lstrip().startswith(b"<?xml")
+
+
+def test_bandgap_of_the_impact_effect_and_the_linear_cell() -> None:
+    from service.analysis.plots import bandgap_figure
+
+    ds = _with_outcomes()
+    m = bandgap_map(ds, "gamma_r", "gap", sel={"theta": 0.3}, variable="impact_effect_db")
+    assert m.attrs["threshold_db"] == -1.0 and m.attrs["variable"] == "impact_effect_db"
+    fig = bandgap_figure(m)
+    assert "where impacts add attenuation (Γ − Γ_lin < -1 dB)" in fig.axes[0].get_title()
+    (mesh,) = fig.axes[0].collections[:1]
+    assert mesh.norm.vcenter == 0.0  # no effect is the neutral colour
+    lin = bandgap_map(ds, "gamma_r", "gap", sel={"theta": 0.3}, variable="transmittance_linear_db")
+    assert "cell without stops" in bandgap_figure(lin).axes[0].get_title()
+    _check_png(bandgap_png(m))
+    assert b"<svg" in bandgap_png(lin, fmt="svg")
+
+
+def test_points_not_computed_yet_are_counted_not_marked_as_failed() -> None:
+    from service.analysis.plots import bandgap_figure, transmittance_figure
+
+    ds = _with_outcomes()
+    pending = np.zeros(ds["transmittance_db"].shape, dtype=bool)
+    pending[:, 1, 50:] = True  # a partial dataset: the end of every θ = 0.3 spectrum
+    ds["pending"] = (ds["transmittance_db"].dims, pending)
+    ds["transmittance_db"] = ds["transmittance_db"].where(~ds["pending"])
+    ds["outcome"] = ds["outcome"].where(~ds["pending"], 4).astype(np.int8)  # stored as failed
+    fig = bandgap_figure(bandgap_map(ds, "gamma_r", "gap", sel={"theta": 0.3}))
+    texts = _legend_texts(fig.legends[0])
+    assert "not computed yet (45)" in texts and "failed (1)" in texts
+    ax = transmittance_figure(ds, {"theta": 0.3}, hue="gap").axes[0]
+    texts = _legend_texts(ax.get_legend())
+    assert "not computed yet (45)" in texts and "failed (1)" in texts

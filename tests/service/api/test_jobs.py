@@ -23,7 +23,11 @@ from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from tests.service.helpers import SLOW_SOLVER, Server, tiny_study
+from worker.simulate import simulate_chunk
 
+# Points of one to two seconds each (Euler, 1.6e7 steps, the whole budget).
+MEDIUM_SOLVER = {"method": "euler", "steps_per_period": 4096, "max_periods": 4000,
+                 "early_stop": False, "window": 10}  # fmt: skip
 # Points of a minute or more each (Euler, 6.5e8 steps): work that only a working cancel can stop.
 HEAVY_SOLVER = {"method": "euler", "steps_per_period": 65_536, "max_periods": 10_000,
                 "early_stop": False, "window": 10}  # fmt: skip
@@ -174,7 +178,9 @@ def test_two_service_processes_never_run_one_study_twice(tmp_path: Path,
                                                          dask_address: str) -> None:  # fmt: skip
     data = tmp_path / "data"
     env = {"IMPACTCELL_LEASE_TTL_S": "3"}
-    d = tiny_study(name="shared", num=60, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)
+    # 24 points of a second or two each (whole budget, no early stop): the study outlasts the
+    # checks below on any machine, and each point's number does not depend on where it ran.
+    d = tiny_study(name="shared", num=12, gaps=(0.1, 0.5), **MEDIUM_SOLVER)
     study = parse_study(d)
     a = Server(data, dask_address, env=env)
     b = None
@@ -182,32 +188,33 @@ def test_two_service_processes_never_run_one_study_twice(tmp_path: Path,
     try:
         sid = httpx.post(f"{a.url}/studies", json=d).json()["id"]
         t0 = time.monotonic()
-        while httpx.get(f"{a.url}/studies/{sid}").json()["points_done"] == 0:
+        while httpx.get(f"{a.url}/studies/{sid}").json()["status"] != "running":
             assert time.monotonic() - t0 < 120
             time.sleep(0.1)
         b = Server(data, dask_address, env=env)  # a second service on the same catalogue
         holders = set()
         done = []
         for _ in range(40):  # ~4 lease periods: b sees the study running and leaves it
-            holders.add(_holder(cat, sid))
             rec = httpx.get(f"{b.url}/studies/{sid}").json()
-            assert rec["status"] == "running" or rec["points_done"] == 240, rec
+            assert rec["status"] == "running", rec  # still running: the takeover is tested
+            holders.add(_holder(cat, sid))
             done.append(rec["points_done"])
-            if rec["status"] != "running":
-                break
             time.sleep(0.1)
         assert holders == {f"pid:{a.proc.pid}"}, holders
-        assert done == sorted(done)  # progress only moves forward: nobody restarted it
+        assert done == sorted(done) and done[-1] < 24  # only forward: nobody restarted it
         # The first process dies: the second takes the study over after its lease expires.
         a.stop(signal.SIGKILL)
         t0 = time.monotonic()
         while (rec := httpx.get(f"{b.url}/studies/{sid}").json())["status"] != "finished":
             assert time.monotonic() - t0 < 300, rec
             time.sleep(0.2)
-        assert rec["points_done"] == 240
+        assert rec["points_done"] == 24 and rec["points_failed"] == 0
         ds = open_results(StudyStore(data, study).results_path)
-        ref = open_results(run_study(study, tmp_path / "ref", serial=True).path)
-        np.testing.assert_array_equal(ds["transmittance_db"].values, ref["transmittance_db"].values)
+        # every point is the one a run of its own gives (three of them, recomputed here)
+        gamma = ds["transmittance_db"].values.ravel()
+        for i in (0, 11, 23):
+            ref = simulate_chunk(study.points(i, i + 1), study.solver.settings().__dict__)[0]
+            assert gamma[i] == ref["transmittance_db"]
     finally:
         cat.close()
         for srv in (a, b):

@@ -255,3 +255,87 @@ def test_one_axis_study_gives_a_1d_map(tmp_path: Path) -> None:
         assert r.status_code == 200 and json.loads(r.headers["x-impactcell-fixed"])["y"] is None
     finally:
         app.close()
+
+
+def impact_record(i: int) -> dict[str, Any]:
+    """A synthetic point with the linear reference: every third point impacts and attenuates
+    2.5 dB more than the cell without stops."""
+    rec = record(i)
+    impacting = i % 3 == 1
+    effect = -2.5 if impacting else 0.0
+    rec.update(outcome="periodic" if impacting else "linear",
+               transmittance_linear_db=rec["transmittance_db"] - effect,
+               impact_effect_db=effect)  # fmt: skip
+    return rec
+
+
+def test_bandgap_of_the_impact_effect_and_the_linear_reference(served: Served) -> None:
+    served.store.write_chunk(0, 36, [impact_record(i) for i in range(36)])
+    out = served.get("/bandgap", variable="impact_effect_db", theta=0.1).json()
+    assert out["variable"]["name"] == "impact_effect_db" and out["variable"]["units"] == "dB"
+    assert (
+        out["threshold"]["value"] == -1.0
+        and "more than the same cell" in (out["threshold"]["meaning"])
+    )
+    values = np.array(out["impact_effect_db"])  # gap × gamma_r
+    np.testing.assert_array_equal(out["attenuating"], values < -1.0)
+    # points 1, 4 of each spectrum impact: bands around γ_r[1] and γ_r[4] in every row
+    gr = np.array(out["axes"]["x"]["values"])
+    for row in out["edges"]:
+        assert len(row["bands"]) == 2
+        assert row["bands"][0][0] < gr[1] < row["bands"][0][1] < gr[2]
+    lin = served.client.bandgap_map(served.id, theta=0.1, variable="transmittance_linear_db")
+    assert lin.attrs["variable"] == "transmittance_linear_db" and lin.attrs["threshold_db"] == 0.0
+    assert lin["transmittance_linear_db"].attrs["units"] == "dB"
+    # the client's own threshold is sent; none means the service's default for the variable
+    eff = served.client.bandgap_json(served.id, theta=0.1, variable="impact_effect_db",
+                                     threshold_db=-3.0)  # fmt: skip
+    assert eff["threshold_db"] == -3.0 and not any(e["bands"] for e in eff["edges"])
+    csv_text = served.client.bandgap_csv(served.id, theta=0.1, variable="impact_effect_db")
+    assert csv_text.splitlines()[1].split(",")[6] == "-1.0"  # threshold_db column
+    r = served.get("/bandgap", variable="theta_eff")
+    assert r.status_code == 422 and "impact_effect_db" in r.text
+    for fmt in ("png", "svg"):
+        p = served.get(f"/plots/bandgap.{fmt}", variable="impact_effect_db")
+        assert p.status_code == 200, p.text
+    png = served.client.plot(served.id, "bandgap", variable="impact_effect_db", theta=0.1)
+    assert png[:4] == b"\x89PNG" and png != served.client.plot(served.id, "bandgap", theta=0.1)
+    # reference=linear: measured against the cell without stops, the same map
+    ref = served.get("/bandgap", reference="linear", theta=0.1).json()
+    assert ref["variable"]["name"] == "impact_effect_db" and ref["edges"] == out["edges"]
+    assert served.get("/plots/bandgap.png", reference="linear", theta=0.1).content == (
+        served.get("/plots/bandgap.png", variable="impact_effect_db", theta=0.1).content
+    )
+    bad = served.get("/bandgap", reference="linear", variable="transmittance_linear_db")
+    assert bad.status_code == 422 and "reference=linear" in bad.json()["detail"]
+
+
+def test_the_map_variables_of_the_route_are_those_of_the_analysis() -> None:
+    import typing
+
+    from service.analysis.bands import MAP_VARIABLES
+
+    assert typing.get_args(results.MapVariable) == tuple(MAP_VARIABLES)
+
+
+def test_datasets_carry_the_reference_and_chunks_from_before_it_still_collate(
+    served: Served,
+) -> None:
+    served.store.write_chunk(0, 18, [impact_record(i) for i in range(18)])
+    # a chunk written before the linear reference existed: the same file without its columns
+    served.store.write_chunk(18, 36, [impact_record(i) for i in range(18, 36)])
+    path = served.store.chunk_dir / "18-36.npz"
+    with np.load(path) as z:
+        old = {k: z[k] for k in z.files if k not in ("transmittance_linear_db",
+                                                    "impact_effect_db")}  # fmt: skip
+    with open(path, "wb") as fh:
+        np.savez(fh, **old)
+    ds = served.client.dataset(served.id)
+    for name in ("transmittance_linear_db", "impact_effect_db"):
+        assert ds[name].attrs["units"] == "dB" and ds[name].attrs["long_name"]
+    flat = ds["impact_effect_db"].transpose("gap", "theta", "gamma_r").values.ravel()
+    assert np.isnan(flat[18:]).all() and np.isfinite(flat[:18]).all()
+    assert (flat[:18][[i % 3 == 1 for i in range(18)]] == -2.5).all()
+    assert served.get("/bandgap", variable="impact_effect_db", theta=0.3).status_code == 200
+    cols, _ = served.store.collect_partial()
+    assert np.isnan(cols["transmittance_linear_db"][18:]).all()

@@ -10,16 +10,13 @@ port on the loopback that nobody listens on.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import socket
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 import xarray as xr
@@ -29,20 +26,10 @@ from service.api.server import free_port
 from service.cli import build_parser, main
 from service.cli.common import HelpFormatter
 from service.cli.simulate import FIELD_FLAGS, in_flag_terms
+from tests.service.helpers import run_cli as run
 from tests.service.helpers import tiny_study
 
 ROOT = Path(__file__).resolve().parents[3]
-
-
-def run(*args: str) -> SimpleNamespace:
-    """The CLI in this process: exit status, stdout and stderr as a subprocess would give."""
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        try:
-            code = main(list(args))
-        except SystemExit as exc:  # argparse's own errors
-            code = exc.code if isinstance(exc.code, int) else 2
-    return SimpleNamespace(returncode=code or 0, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def one_error_line(stderr: str) -> str:

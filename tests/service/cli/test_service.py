@@ -77,6 +77,35 @@ def test_demo_writes_map_and_dataset(tmp_path: Path, capsys) -> None:
     assert [e["y"] for e in doc["edges"]] == [0.1, 0.5]
     assert doc["variable"]["name"] == "transmittance_db" and doc["threshold"]["value"] == 0.0
     assert (doc["x"], doc["y"]) == ("gamma_r", "gap") and doc["axes"]["y"] is not None
+    # what the impacts add: the impact-effect map and a line per gap
+    assert (out / "impact_effect.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    effect = json.loads((out / "impact_effect.json").read_text())
+    assert effect["variable"]["name"] == "impact_effect_db" and effect["threshold_db"] == -1.0
+    assert text.count("impacts add > 1 dB of attenuation for γ_r in") == 2
+    ds = xr.open_dataset(out / "demo-small.nc")
+    assert ds["impact_effect_db"].attrs["units"] == "dB"
+    ds.close()
+
+
+def test_demo_lines_say_what_the_impacts_add() -> None:
+    from service.cli.service import _demo_lines
+
+    def doc(name: str, values: list, bands: list) -> dict:
+        edges = [{"y": g, "bands": b} for g, b in zip((0.1, 0.5), bands, strict=True)]
+        return {"x": "gamma_r", "coords": {"gamma_r": [1.0, 2.0, 3.0, 4.0]}, name: values,
+                "edges": edges}  # fmt: skip
+
+    gamma = doc("transmittance_db", [], [[[1.5, 4.0]], [[2.5, 4.0]]])
+    lin = doc("transmittance_linear_db", [], [[[2.5, 4.0]], [[2.5, 4.0]]])
+    # gap 0.1: impacts add 3 dB at γ_r 2 (a wider band); gap 0.5: they take 2 dB away at 3
+    effect = doc("impact_effect_db", [[0.0, -3.0, 0.0, 0.0], [0.0, 0.0, 2.0, None]],
+                 [[[1.33, 2.67]], []])  # fmt: skip
+    lines = _demo_lines(gamma, lin, effect)
+    assert lines[0] == (
+        "  gap 0.1: Γ < 0 dB for γ_r in 1.5–4; without stops 2.5–4; impacts add > 1 dB of "
+        "attenuation for γ_r in 1.33–2.67, remove > 1 dB in none"
+    )
+    assert lines[1].endswith("add > 1 dB of attenuation for γ_r in none, remove > 1 dB in 2.5–3")
 
 
 def test_serve_never_prints_the_database_password(capsys, monkeypatch) -> None:

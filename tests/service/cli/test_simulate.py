@@ -1,18 +1,16 @@
 """The command line: in process (``main(argv)``, fast), and once as a real subprocess."""
 
-import io
 import json
 import os
 import re
 import subprocess
 import sys
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 
 from service.cli import main
+from tests.service.helpers import run_cli as run
 from worker.model import CellParams, linear_transmittance_db
 from worker.simulate import kernels_cached
 from worker.solvers.settings import METHODS, OUTCOMES
@@ -31,17 +29,6 @@ def subprocess_run(*args: str, env: dict[str, str] | None = None) -> subprocess.
         [sys.executable, "-m", "service.cli", *args], capture_output=True, text=True, timeout=600,
         cwd=ROOT, env=env,
     )  # fmt: skip
-
-
-def run(*args: str) -> SimpleNamespace:
-    """The CLI in this process: exit status, stdout and stderr as a subprocess would give."""
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        try:
-            code = main(list(args))
-        except SystemExit as exc:  # argparse's own errors
-            code = exc.code if isinstance(exc.code, int) else 2
-    return SimpleNamespace(returncode=code or 0, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def test_point_json_has_every_field_and_the_right_number():
@@ -162,3 +149,15 @@ def test_ci_runs_the_readme_test_command():
     ci = (ROOT / ".ci" / "run").read_text()
     cmd = re.search(r"# run the tests\n(.+)\n", readme).group(1).strip()
     assert cmd in ci
+
+
+def test_point_prints_the_linear_reference_and_the_impact_effect():
+    out = run("point", "--gamma-r", "2.05", "--gap", "0.1")
+    d = json.loads(run("point", "--gamma-r", "2.05", "--gap", "0.1", "--json").stdout)
+    assert out.returncode == 0 and d["outcome"] == "periodic"
+    line = next(t for t in out.stdout.splitlines() if t.startswith("without stops"))
+    assert f"{d['transmittance_linear_db']:.6f} dB" in line
+    assert f"{d['impact_effect_db']:+.6f} dB" in line
+    assert d["impact_effect_db"] == pytest.approx(
+        d["transmittance_db"] - d["transmittance_linear_db"], abs=1e-12
+    )

@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from service.cli import main
+from service.studies.shipped import shipped_studies
 from tests.service.helpers import tiny_study
 
 
@@ -48,7 +49,6 @@ def test_studies_lists_every_shipped_study_with_its_description(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     from service.studies.schema import load_study
-    from service.studies.shipped import shipped_studies
 
     assert main(["studies"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -72,7 +72,7 @@ def test_an_unknown_study_name_lists_the_shipped_ones(
     assert main(["run", "quik", "--serial"]) == 2
     err = capsys.readouterr().err
     assert "'quik' is neither a study file nor a shipped study" in err
-    assert "demo-fig5, experiment-table1, paper-fig5-gaps, paper-fig6-effective-mass, quick" in err
+    assert ", ".join(shipped_studies()) in err  # every shipped name, sorted
     assert not (tmp_path / "data").exists()
 
 
@@ -82,8 +82,8 @@ def test_run_a_shipped_study_by_name_from_any_folder(
 ) -> None:
     monkeypatch.chdir(tmp_path)  # no studies/ folder here
     out = tmp_path / "out"
-    args = ["run", "paper-fig6-effective-mass", "--serial", "--no-progress", "--json"]
+    args = ["run", "paper-fig6-theta-sweep", "--serial", "--no-progress", "--json"]
     assert main([*args, "--out", str(out)]) == 0
     summary = json.loads(capsys.readouterr().out)
-    assert summary["points"] == 25 and Path(summary["path"]).is_file()
+    assert summary["points"] == 30 and Path(summary["path"]).is_file()
     assert Path(summary["path"]).is_relative_to(out)

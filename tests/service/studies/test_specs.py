@@ -11,6 +11,7 @@ from pydantic import ValidationError
 from service.studies.schema import StudyError, parse_study
 from service.studies.specs import (
     AXIS_BOUNDS,
+    PER_FREQUENCY_FIELDS,
     Grid,
     ModelSpec,
     PhysicalSpec,
@@ -35,7 +36,11 @@ def test_every_worker_parameter_is_in_exactly_one_block_or_the_grid() -> None:
     assert set(ModelSpec.model_fields) | (set(MODEL_AXES) - {"gap"}) == cell
     assert set(ModelSpec.model_fields) & set(MODEL_AXES) == {"xi"}
     assert set(SolverSpec.model_fields) == {f.name for f in dataclasses.fields(SolverSettings)}
-    assert set(PhysicalSpec.model_fields) == {f.name for f in dataclasses.fields(PhysicalCell)}
+    # PhysicalCell's fields, plus the per-frequency base amplitude (set point by point as
+    # base_amplitude_m, so it is not a cell field)
+    physical = {f.name for f in dataclasses.fields(PhysicalCell)}
+    assert set(PhysicalSpec.model_fields) == physical | set(PER_FREQUENCY_FIELDS)
+    assert not physical & set(PER_FREQUENCY_FIELDS)
     assert set(Grid.model_fields) == set(MODEL_AXES) | set(PHYSICAL_AXES)
 
 
