@@ -6,6 +6,7 @@
 >>> c.wait(rec["id"])
 >>> ds = c.dataset(rec["id"])
 >>> gaps = c.bandgap_map(rec["id"], x="gamma_r", y="gap", theta=0.3)
+>>> loops = c.hysteresis(rec["id"])  # sweep or multi-start studies: branches, jumps
 
 Contract with the service: ``cancel`` is ``POST /studies/{id}/cancel`` (finished chunks kept),
 ``delete`` is ``DELETE /studies/{id}`` (the study and its files removed), ``submit(...,
@@ -391,9 +392,59 @@ class Client:
             params["y"] = y
         return params
 
+    def hysteresis(
+        self,
+        study_id: str,
+        x: str | None = None,
+        variable: str = "transmittance_db",
+        jump_db: float | None = None,
+        tol_db: float | None = None,
+        nearest: bool = False,
+        **sel: Any,
+    ) -> dict[str, Any]:
+        """The hysteresis map of a sweep or multi-start study (``GET /studies/{id}/hysteresis``)
+        as the service sends it: ``branches`` (``up``, ``down``, each initial state: label,
+        values along ``axes.x``, outcomes, jumps), ``jumps`` (label, branch, from, to,
+        size_db), ``differing`` (intervals of x where the branches differ), ``responses``,
+        ``slice`` and the thresholds with their meaning. ``x`` defaults to the swept axis;
+        ``direction=``/``initial=`` keep only those branches; ``jump_db`` and ``tol_db``
+        default to the service's (1 and 0.05 dB). A study without a sweep or several starts
+        is an :class:`InvalidRequest`.
+        """
+        params = self._hysteresis_params(x, variable, jump_db, tol_db, nearest, sel)
+        return self._request("GET", f"/studies/{study_id}/hysteresis", params=params).json()
+
+    def hysteresis_csv(
+        self,
+        study_id: str,
+        x: str | None = None,
+        variable: str = "transmittance_db",
+        jump_db: float | None = None,
+        tol_db: float | None = None,
+        nearest: bool = False,
+        **sel: Any,
+    ) -> str:
+        """The hysteresis map as CSV text, one row per branch and x value (``format=csv``)."""
+        params = self._hysteresis_params(x, variable, jump_db, tol_db, nearest, sel)
+        params["format"] = "csv"
+        return self._request("GET", f"/studies/{study_id}/hysteresis", params=params).text
+
+    @staticmethod
+    def _hysteresis_params(x: str | None, variable: str, jump_db: float | None,
+                           tol_db: float | None, nearest: bool,
+                           sel: Mapping[str, Any]) -> dict[str, Any]:  # fmt: skip
+        params: dict[str, Any] = {"variable": variable, "nearest": str(nearest).lower(),
+                                  **_params(sel)}  # fmt: skip
+        for name, value in (("x", x), ("jump_db", jump_db), ("tol_db", tol_db)):
+            if value is not None:
+                params[name] = value
+        return params
+
     def plot(self, study_id: str, kind: str = "bandgap", fmt: str = "png", **params: Any) -> bytes:
-        """A figure, ``fmt`` ``png`` or ``svg``: ``transmittance``, ``bandgap`` or
-        ``effective-mass``. Axes not given are chosen by the service (named in the title)."""
+        """A figure, ``fmt`` ``png`` or ``svg``: ``transmittance``, ``bandgap``,
+        ``effective-mass`` or ``hysteresis`` (sweep and multi-start studies: up and down
+        curves, jumps, where they differ). Axes not given are chosen by the service (named in
+        the title)."""
         if fmt not in ("png", "svg"):
             raise ValueError(f"fmt must be png or svg, got {fmt!r}")
         return self._request(

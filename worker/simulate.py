@@ -1,9 +1,11 @@
-"""The public door of the worker: one point, or a chunk of points (one dask task).
+"""The public door of the worker: one point, a chunk of points, or a sweep line (one dask task).
 
 ``simulate_point`` validates, assembles the cell, prepares the method's kernel run
 (``solvers.dispatch``) and hands it to the point engine (``solvers.engine``), which runs the
-point to its proven end. ``simulate_chunk`` does that for many points and reports a point that
-cannot be run as a failed record, never as an exception.
+point to its proven end. ``simulate_chunk`` does that for many independent points and reports a
+point that cannot be run as a failed record, never as an exception. ``simulate_line`` runs the
+points of one sweep line in order, each starting from its predecessor's final state
+(docs/solvers.md, "Initial states and sweep lines").
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
 from worker.solvers.dispatch import KERNELS, RUNS
 from worker.solvers.engine import DIVERGENCE_FACTOR, linear_reference_db, run_point
@@ -40,6 +43,7 @@ __all__ = [
     "DEFAULT_METHOD",
     "EVENT_FIELDS",
     "HISTORY_FIELDS",
+    "INITIAL_KINDS",
     "LCP_SOLVERS",
     "METHODS",
     "OUTCOMES",
@@ -50,10 +54,14 @@ __all__ = [
     "PointResult",
     "SolverSettings",
     "failed_result",
+    "initial_state",
     "kernels_cached",
     "linear_reference",
+    "parse_initial",
     "point_history",
+    "project_admissible",
     "simulate_chunk",
+    "simulate_line",
     "simulate_point",
     "warm_up",
 ]
@@ -88,7 +96,8 @@ def simulate_point(
         the closed-form steady state, or the last periods of an irregular run); never for
         whole studies.
     initial_state : ndarray, optional
-        ``[u; q]`` at τ = 0 (default: rest).
+        ``[u; q]`` at τ = 0 (default: rest), used as given: :func:`initial_state` and
+        :func:`project_admissible` make admissible ones.
     forcing : bool
         Switch the base excitation off (energy checks).
     limits : PointLimits, optional
@@ -104,7 +113,7 @@ def simulate_point(
     -------
     PointResult
         ``outcome`` says how the point ended; ``failed`` points carry a reason and ``None``
-        values.
+        values. ``final_state`` is the state at a period boundary of the reported response.
 
     Raises
     ------
@@ -150,10 +159,12 @@ def simulate_chunk(
 ) -> list[dict[str, Any]]:
     """Run many points (one dask task). A point that fails is reported, never raised.
 
-    Each point is a mapping of ``CellParams`` fields; ``solver`` holds ``SolverSettings``
-    fields and ``limits`` ``PointLimits`` fields. Returns one ``PointResult.as_dict()`` per
-    point, in order. When ``cancelled()`` turns true (checked between points and inside each
-    point) the chunk stops and returns the records finished so far: fewer than the points.
+    Each point is a mapping of ``CellParams`` fields and optionally ``"initial"`` (the start:
+    ``{"kind": "rest"|"linear"|"random", "seed": …, "index": …}``, see :func:`initial_state`;
+    absent means rest); ``solver`` holds ``SolverSettings`` fields and ``limits``
+    ``PointLimits`` fields. Returns one ``PointResult.as_dict()`` per point, in order. When
+    ``cancelled()`` turns true (checked between points and inside each point) the chunk stops
+    and returns the records finished so far: fewer than the points.
     """
     settings = SolverSettings(**(solver or {}))
     budget = PointLimits(**(limits or {}))
@@ -161,18 +172,78 @@ def simulate_chunk(
     for pt in points:
         if cancelled is not None and cancelled():
             break
-        params: CellParams | None = None
         try:
-            params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
-            res = simulate_point(params, settings, limits=budget, cancelled=cancelled)
-            results.append(res.as_dict())
+            results.append(_run_point(pt, settings, budget, cancelled)[0])
         except PointCancelled:
             break
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-            # a refused point of a valid cell still has its linear reference
-            lin = linear_reference(params) if params is not None else None
-            results.append(failed_result(settings, str(exc), lin))
     return results
+
+
+def simulate_line(
+    points: Iterable[Mapping[str, Any]],
+    solver: Mapping[str, Any] | None = None,
+    limits: Mapping[str, Any] | None = None,
+    cancelled: Callable[[], bool] | None = None,
+) -> list[dict[str, Any]]:
+    """Run one sweep line (one dask task): the points in sweep order, each from the last one's
+    final state.
+
+    The first point starts from its ``"initial"`` (default rest); each next one from the
+    previous point's ``final_state`` (a period boundary of its reported response), projected
+    onto its own admissible set (the gaps may change along the line). After a failed point, or
+    where the state sizes differ (a sweep over ``modes``), the next point starts from its own
+    ``"initial"`` again. Every record is ``PointResult.as_dict()`` plus ``"started_from"``:
+    ``"initial"`` or ``"previous"`` (only records of lines carry it). Failures, limits and
+    cancelling as :func:`simulate_chunk`.
+    """
+    settings = SolverSettings(**(solver or {}))
+    budget = PointLimits(**(limits or {}))
+    results: list[dict[str, Any]] = []
+    previous: np.ndarray | None = None
+    for pt in points:
+        if cancelled is not None and cancelled():
+            break
+        try:
+            record, previous = _run_point(pt, settings, budget, cancelled, previous, line=True)
+        except PointCancelled:
+            break
+        results.append(record)
+    return results
+
+
+def _run_point(
+    pt: Mapping[str, Any],
+    settings: SolverSettings,
+    budget: PointLimits,
+    cancelled: Callable[[], bool] | None,
+    previous: np.ndarray | None = None,
+    line: bool = False,
+) -> tuple[dict[str, Any], np.ndarray | None]:
+    """One point's record and final state, from ``previous`` (a sweep line's hand-over) or
+    from the point's own ``"initial"``; ``line`` adds ``started_from`` to the record. A point
+    that cannot be run is a failed record (final state ``None``); a cancel is raised."""
+    params: CellParams | None = None
+    started = "initial"
+    try:
+        params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
+        parse_initial(pt.get("initial"))  # a bad entry fails its point, used or not
+        x0: np.ndarray | None = None
+        if previous is not None and previous.shape == (2 * (params.modes + 1),):
+            x0 = project_admissible(assemble(params), previous)
+            started = "previous"
+        elif pt.get("initial") is not None:
+            x0 = initial_state(params, pt["initial"])
+        # no "initial": x0 stays None, today's rest start bit for bit
+        res = simulate_point(params, settings, initial_state=x0, limits=budget,
+                             cancelled=cancelled)  # fmt: skip
+        record, final = res.as_dict(), res.final_state
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        # a refused point of a valid cell still has its linear reference
+        lin = linear_reference(params) if params is not None else None
+        record, final = failed_result(settings, str(exc), lin), None
+    if line:
+        record["started_from"] = started
+    return record, final
 
 
 def linear_reference(params: CellParams) -> float | None:
@@ -191,10 +262,13 @@ def point_history(
     limits: Mapping[str, Any] | None = None,
 ) -> PointResult:
     """One point of a study with ``periods`` periods of its time histories (one dask task:
-    the service's ``/timeseries``). Raises ``ValueError`` for a point that cannot be run."""
+    the service's ``/timeseries``). The point starts from its ``"initial"`` (default rest),
+    not from a sweep line's predecessor. Raises ``ValueError`` for a point that cannot be run."""
     params = CellParams(**{k: point[k] for k in POINT_KEYS if k in point})
+    init = point.get("initial")
     return simulate_point(
         params, SolverSettings(**solver), history_periods=periods,
+        initial_state=None if init is None else initial_state(params, init),
         limits=PointLimits(**(limits or {})),
     )  # fmt: skip
 

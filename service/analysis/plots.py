@@ -18,6 +18,7 @@ Symbols and units of the axes come from :mod:`service.studies.variables`.
 from __future__ import annotations
 
 import io
+import itertools
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
@@ -31,6 +32,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
 from service.analysis.bands import EDGE_KINDS, band_edges
+from service.analysis.hysteresis import fixed_of
 from service.analysis.selection import AnalysisError, Selection, slice_axes
 from service.studies.variables import AXES, axis_symbol, default_x, outcome_names
 
@@ -48,6 +50,8 @@ __all__ = [
     "cell_edges",
     "effective_mass_figure",
     "effective_mass_png",
+    "hysteresis_figure",
+    "hysteresis_png",
     "transmittance_figure",
     "transmittance_png",
 ]
@@ -547,3 +551,118 @@ def effective_mass_png(
     """:func:`effective_mass_figure` as PNG (or SVG with ``fmt="svg"``) bytes."""
     _check_format(fmt)
     return _png(effective_mass_figure(ds, sel, x, nearest, fixed=fixed), fmt)
+
+
+#: Colour, marker (pointing the way the sweep went) and line width of each sweep direction in
+#: a hysteresis figure: up is drawn wider and first, so it shows where down lies on it.
+_DIRECTION_STYLE: dict[str, tuple[str, str, float]] = {
+    "up": ("C0", ">", 2.6),
+    "down": ("C3", "<", 1.2),
+}
+_INITIAL_LINES = ("-", "--", ":", "-.")
+
+
+def _branch_style(direction: str, k_initial: int, k: int) -> tuple[Any, str, str, float]:
+    """Colour, marker, line style and width of a branch (direction: colour, marker and width;
+    initial state without a direction: colour; with one: line style)."""
+    if direction in _DIRECTION_STYLE:
+        color, marker, lw = _DIRECTION_STYLE[direction]
+        return color, marker, _INITIAL_LINES[k_initial % len(_INITIAL_LINES)], lw
+    return f"C{k % 10}", ".", "-", 1.3
+
+
+def hysteresis_figure(h: xr.Dataset, *, fixed: Mapping[str, Any] | None = None) -> Figure:
+    """A :func:`service.analysis.hysteresis.hysteresis_map` as a figure.
+
+    Every branch is a curve (up and down in two colours, with ``>``/``<`` markers pointing the
+    way the sweep went; initial states in their own colours, or line styles under a sweep),
+    broken at its jumps; each jump is a vertical dashed segment (``gid`` ``jump``) at the x the
+    branch lands on, from the value before to the value after, labelled ``J1``, ...; the grid
+    cells where the branches differ are shaded (``gid`` ``differs``, edges at the midpoints
+    between grid points, :func:`cell_edges`); irregular, unsettled and failed points are marked
+    as in every figure (:data:`MARKS`). The legend counts points per branch, jumps, differing
+    points and points with several responses. ``fixed`` defaults to the map's own.
+    """
+    x = str(h.attrs["x"])
+    variable = str(h.attrs["variable"])
+    da = h[variable]
+    units = _units(da)
+    symbol, label = _VARIABLE_TEXT.get(variable, (variable, f"{variable} ({units})"))
+    jump_db, tol_db = float(h.attrs["jump_db"]), float(h.attrs["tol_db"])
+    xv = h[x].values.astype(np.float64)
+    rows = np.asarray(da.values, dtype=np.float64)
+    labels = [str(v) for v in h["branch"].values]
+    directions = [str(v) for v in h["branch_direction"].values]
+    inits = [str(v) for v in h["branch_initial"].values]
+    init_index = {v: k for k, v in enumerate(dict.fromkeys(inits))}
+    if fixed is None:
+        fixed = fixed_of(h)
+    fig, ax = _figure()
+    u = "" if units == "–" else f" {units}"
+
+    differs = np.asarray(h["differs"].values, dtype=bool)
+    edges = cell_edges(xv)
+    what = "up and down differ" if set(directions) == {"up", "down"} and len(set(inits)) == 1 \
+        else "branches differ"  # fmt: skip
+    for k, (i, j) in enumerate(_runs(differs)):
+        ax.axvspan(edges[i], edges[j], color="C1", alpha=0.18, lw=0, gid="differs",
+                   label=f"{what} by > {tol_db:g}{u} ({int(differs.sum())} points)"
+                   if k == 0 else None)  # fmt: skip
+
+    jb = np.asarray(h["jump_branch"].values, dtype=np.int64)
+    j_to = np.asarray(h["jump_to"].values, dtype=np.float64)
+    j_from = np.asarray(h["jump_from"].values, dtype=np.float64)
+    j_v0 = np.asarray(h["jump_from_value"].values, dtype=np.float64)
+    j_v1 = np.asarray(h["jump_to_value"].values, dtype=np.float64)
+    j_lab = [str(v) for v in h["jump_label"].values]
+    styles = []
+    for b, row in enumerate(rows):
+        color, marker, ls, lw = _branch_style(directions[b], init_index[inits[b]], b)
+        styles.append(color)
+        # break the curve between the two points of each of its jumps
+        cuts = sorted(int(np.searchsorted(xv, max(j_from[k], j_to[k]))) for k in
+                      np.flatnonzero(jb == b))  # fmt: skip
+        bounds = [0, *cuts, xv.size]
+        n = int(np.isfinite(row).sum())
+        for s, (a, c) in enumerate(itertools.pairwise(bounds)):
+            ax.plot(xv[a:c], row[a:c], color=color, ls=ls, lw=lw, marker=marker, ms=2 + 1.5 * lw,
+                    gid=f"branch-{labels[b]}",
+                    label=f"{labels[b]} ({n} points)" if s == 0 else None)  # fmt: skip
+    stacked: dict[float, int] = {}  # labels of jumps at one x go one under the other
+    for k in range(jb.size):
+        color = styles[jb[k]]
+        row_k = stacked[float(j_to[k])] = stacked.get(float(j_to[k]), -1) + 1
+        jump_label = f"jump > {jump_db:g}{u} ({jb.size})" if k == 0 else None
+        ax.plot([j_to[k], j_to[k]], [j_v0[k], j_v1[k]], ls="--", lw=1.4, color=color,
+                gid="jump", label=jump_label)  # fmt: skip
+        ax.annotate(j_lab[k], (j_to[k], 0.5 * (j_v0[k] + j_v1[k])), xytext=(3, -9 * row_k),
+                    textcoords="offset points", fontsize=7, color=color)  # fmt: skip
+
+    if "outcome" in h.data_vars:
+        names = outcome_names(h["outcome"]).astype(object)
+        if "pending" in h.data_vars:
+            names[np.asarray(h["pending"].values, dtype=bool)] = "pending"
+        names = names.astype(str)
+    else:
+        names = np.where(np.isnan(rows), "failed", "").astype(str)
+    _mark_outcomes(ax, xv, rows, names)
+    if "responses" in h.data_vars:
+        resp = np.asarray(h["responses"].values, dtype=np.float64)
+        several = int(np.sum(resp > 1))
+        if several:
+            ax.plot([], [], " ", label=f"2 or more responses ({several} points)")
+    title = f"hysteresis of {symbol} along {axis_symbol(x)}: {len(labels)} branches"
+    ax.set_title(_title(title, _subtitle(da, skip=(x,)), _fixed_text(fixed)), fontsize=9)
+    ax.set_xlabel(_axis_label(x, h[x]))
+    ax.set_ylabel(label)
+    ax.grid(True, lw=0.4, alpha=0.5)
+    _legend(ax, loc="best")
+    return fig
+
+
+def hysteresis_png(
+    h: xr.Dataset, *, fixed: Mapping[str, Any] | None = None, fmt: Format = "png"
+) -> bytes:
+    """:func:`hysteresis_figure` as PNG (or SVG with ``fmt="svg"``) bytes."""
+    _check_format(fmt)
+    return _png(hysteresis_figure(h, fixed=fixed), fmt)

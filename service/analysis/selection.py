@@ -29,6 +29,7 @@ from service.studies.dataset import jsonable
 from service.studies.variables import MODEL_AXES, default_x
 
 __all__ = [
+    "BRANCH_DIMS",
     "FEW_VALUES",
     "AnalysisError",
     "Selection",
@@ -41,6 +42,7 @@ __all__ = [
     "slice_axes",
     "slice_csv",
     "slice_json",
+    "sweep_x",
     "values_text",
 ]
 
@@ -258,6 +260,10 @@ def slice_axes(
 #: A second axis (hue of a line plot, y of a bandgap map) is preferably one with at most this
 #: many values: a legend of more lines is unreadable.
 FEW_VALUES = 12
+#: Dimensions of sweep and multi-start studies that label a branch (which start, which sweep
+#: direction), not a parameter: never a default plot axis, fixed at their first value unless
+#: selected or kept (:func:`default_view`).
+BRANCH_DIMS: tuple[str, ...] = ("initial", "direction")
 
 
 class View(NamedTuple):
@@ -285,7 +291,9 @@ def default_y(
     """
     chosen = set(sel or {})
     order = {a: i for i, a in enumerate(MODEL_AXES)}
-    cands = [d for d in _varying(ds, variable) if d != x and d not in chosen]
+    cands = [
+        d for d in _varying(ds, variable) if d != x and d not in chosen and d not in BRANCH_DIMS
+    ]
     cands.sort(key=lambda d: order.get(d, len(order)))  # stable: others in dataset order
     few = [d for d in cands if ds.sizes[d] <= FEW_VALUES]
     return (few or cands or [None])[0]
@@ -299,12 +307,14 @@ def default_view(
     sel: Selection | None = None,
     *,
     auto_y: bool = True,
+    keep: Sequence[str] = (),
 ) -> View:
     """Fill in what a request left open, so a figure or map needs no parameters at all.
 
     ``x`` defaults to the frequency axis (:func:`service.studies.variables.default_x`), ``y``
     (when ``auto_y``) to :func:`default_y`; every other varying dimension of ``variable`` that
-    ``sel`` does not give is fixed at its first value and reported in ``View.fixed``.
+    ``sel`` does not give and ``keep`` does not name is fixed at its first value and reported
+    in ``View.fixed``.
     """
     _variable(ds, variable)
     sel = dict(sel or {})
@@ -319,11 +329,20 @@ def default_view(
         y = default_y(ds, x, sel, variable)
     fixed: dict[str, Any] = {}
     for d in _varying(ds, variable):
-        if d not in (x, y) and d not in sel:
+        if d not in (x, y) and d not in sel and d not in keep:
             v = ds[d].values[0]
             fixed[d] = v.item() if hasattr(v, "item") else v
             sel[d] = repr(float(fixed[d])) if ds[d].dtype.kind in "iuf" else str(fixed[d])
     return View(x, y, sel, fixed)
+
+
+def sweep_x(ds: xr.Dataset, variable: str = "transmittance_db") -> str | None:
+    """The swept axis of a sweep study (attribute ``sweep_axis``) when it is a varying
+    dimension of ``variable``; else None (callers then take the default x)."""
+    axis = ds.attrs.get("sweep_axis")
+    if axis is None or str(axis) == "":
+        return None
+    return str(axis) if str(axis) in _varying(ds, variable) else None
 
 
 # --------------------------------------------------------------------------- JSON

@@ -220,7 +220,11 @@ def _grid_problems(new: xr.Dataset, old: xr.Dataset) -> list[str]:
         return [f"grid axes differ: baseline {list(do)}, new {list(dn)}"]
     for d in dn:
         a, b = new[d].values, old[d].values
-        if a.shape != b.shape or not np.allclose(a, b, rtol=1e-12, atol=0):
+        if a.dtype.kind in "US" or b.dtype.kind in "US":  # labels: direction, initial
+            same = a.shape == b.shape and bool(np.all(a.astype(str) == b.astype(str)))
+        else:
+            same = a.shape == b.shape and bool(np.allclose(a, b, rtol=1e-12, atol=0))
+        if not same:
             return [f"grid axis {d} differs: baseline {b.size} values, new {a.size} values"]
     return []
 
@@ -276,7 +280,8 @@ def _coords_at(da: xr.DataArray, flat: int) -> dict[str, float]:
         if c.ndim == 0 or not set(c.dims) <= set(idx):
             continue
         v = c.isel({d: idx[d] for d in c.dims}).values
-        out[str(name)] = json_number(v)  # type: ignore[assignment]
+        # a label (sweep direction, initial state) as itself, a number JSON-safe
+        out[str(name)] = str(v) if v.dtype.kind in "US" else json_number(v)  # type: ignore[assignment]
     for d in da.dims:  # a dimension without a coordinate: its index
         out.setdefault(str(d), int(idx[d]))
     return out

@@ -7,6 +7,9 @@ resolved by the caller's :class:`~service.api.settings.Settings`)::
     studies/<id>/chunks/<start>-<stop>.npz   one finished chunk of points
     studies/<id>/results.nc            the collated dataset (NetCDF4, zlib)
 
+Chunk ranges are in the study's work order (:meth:`~service.studies.schema.Study.work_indices`:
+the grid's C order unless the study has a sweep, whose chunks are whole lines).
+
 Ids are content hashes (:attr:`service.studies.schema.Study.id`), never user-chosen names. Every
 file is written to a temporary name in the same folder, flushed, and renamed into place, so a
 crash (even SIGKILL) never leaves a file that looks complete but is not.
@@ -28,7 +31,7 @@ import xarray as xr
 
 from service.studies.dataset import FILL_INT, PENDING, encoding
 from service.studies.schema import Study
-from service.studies.variables import VARIABLES, outcome_codes
+from service.studies.variables import SWEEP_VARIABLES, VARIABLES, outcome_codes
 from worker.simulate import SOLVER_VERSION
 
 __all__ = [
@@ -49,6 +52,8 @@ STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
 # Fields kept in chunk files (everything simulate_chunk reports that a dataset may hold).
 CHUNK_FIELDS = tuple(VARIABLES)
+# Fields kept besides in the chunk files of a sweep (simulate_line reports them).
+LINE_FIELDS = ("started_from",)
 
 
 def is_study_id(text: str) -> bool:
@@ -101,12 +106,15 @@ def iter_chunk_ranges(ranges: Iterable[tuple[int, int]], size: int) -> list[tupl
 # --------------------------------------------------------------------------- records -> arrays
 
 
-def _columns(records: Sequence[Mapping[str, Any]]) -> dict[str, np.ndarray]:
+def _columns(
+    records: Sequence[Mapping[str, Any]], fields: Sequence[str] = CHUNK_FIELDS
+) -> dict[str, np.ndarray]:
     """Per-field arrays of result records; ``None`` becomes NaN (floats) or -1 (ints), the
     ``outcome`` string its flag value."""
     n = len(records)
     cols: dict[str, np.ndarray] = {}
-    for name, var in VARIABLES.items():
+    for name in fields:
+        var = VARIABLES[name] if name in VARIABLES else SWEEP_VARIABLES[name]
         if name == "impacts_per_period":
             arr = np.full((n, 2), np.nan)
             for i, r in enumerate(records):
@@ -141,8 +149,10 @@ def _chunk_column(data: Mapping[str, np.ndarray], name: str, n: int) -> np.ndarr
     (NaN) there, so a study resumed across the change still collates."""
     if name in data:
         return data[name]
-    if VARIABLES[name].kind == "float":
+    if name in VARIABLES and VARIABLES[name].kind == "float":
         return np.full(n, np.nan)
+    if name in LINE_FIELDS:  # a line's task that failed: where it started from is unknown
+        return np.full(n, "", dtype="<U1")
     raise KeyError(name)
 
 
@@ -184,6 +194,8 @@ class StudyStore:
             raise ValueError(f"study id must be a hex digest, got {self.id!r}")
         self.folder = data_root(root) / "studies" / self.id
         self.chunk_dir = self.folder / "chunks"
+        #: The fields its chunk files keep (a sweep's also say where each point started).
+        self.fields = CHUNK_FIELDS + (LINE_FIELDS if study.sweep is not None else ())
 
     @property
     def results_path(self) -> Path:
@@ -225,7 +237,7 @@ class StudyStore:
             raise ValueError(
                 f"chunk {start}-{stop} needs {stop - start} records, got {len(records)}"
             )
-        cols = _columns(records)
+        cols = _columns(records, self.fields)
         path = self.chunk_dir / f"{start}-{stop}.npz"
 
         def write(tmp: Path) -> None:
@@ -332,7 +344,7 @@ class StudyStore:
                 continue
             if state.filled[start:stop].any():
                 raise ValueError(f"chunk file {path} overlaps another chunk")
-            for col in CHUNK_FIELDS:
+            for col in self.fields:
                 state.cols[col][start:stop] = _chunk_column(data, col, stop - start)
             state.filled[start:stop] = True
             state.seen[name] = (*stamp, bool(data["_retry"]))
@@ -346,7 +358,7 @@ class StudyStore:
         rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
         n = self.study.size
         cols: dict[str, np.ndarray] = {}
-        for name, arr in _columns([rec]).items():
+        for name, arr in _columns([rec], self.fields).items():
             dtype = object if arr.dtype.kind == "U" else arr.dtype
             cols[name] = np.empty((n, *arr.shape[1:]), dtype=dtype)
             cols[name][:] = arr[0]
@@ -364,7 +376,7 @@ class StudyStore:
                 raise ValueError(f"chunk file {path} cannot be read")
             if filled[start:stop].any():
                 raise ValueError(f"chunk file {path} overlaps another chunk")
-            for name in CHUNK_FIELDS:
+            for name in self.fields:
                 a = _chunk_column(data, name, stop - start)
                 if name not in cols:
                     dtype = object if a.dtype.kind == "U" else a.dtype

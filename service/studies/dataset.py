@@ -1,6 +1,7 @@
 """Results datasets: collation of per-point results into xarray, NetCDF encoding, JSON.
 
-A study's results are one dataset: one dimension per varying axis, CF ``units`` and
+A study's results are one dataset: one dimension per varying axis (after ``initial`` and
+``direction`` for a study with several initial states or a sweep), CF ``units`` and
 ``long_name`` on every coordinate and variable (:mod:`service.studies.variables`), and the
 study definition, its id, the code's provenance (:mod:`service.studies.provenance`) and the
 solver settings as global attributes.
@@ -34,11 +35,13 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from service.studies.coexistence import count_responses
 from service.studies.provenance import provenance_attrs
 from service.studies.schema import Study
 from service.studies.variables import (
     AXES,
     PHYSICAL_VARIABLES,
+    SWEEP_VARIABLES,
     VARIABLES,
     outcome_attrs,
     outcome_counts,
@@ -81,22 +84,36 @@ def results_from_records(
     created: str | None = None,
     computed: np.ndarray | None = None,
 ) -> xr.Dataset:
-    """Collate flat per-point arrays (C order over the study's axes) into a Dataset.
+    """Collate flat per-point arrays (work order, :meth:`Study.work_indices`: the grid's C
+    order for a study without a sweep) into a Dataset.
 
+    Dimensions: ``initial`` (several initial states), ``direction`` (a sweep), then the varying
+    grid axes. A sweep adds ``started_from``; a study with an ``initial`` or ``direction``
+    dimension adds ``responses`` (:func:`service.studies.coexistence.count_responses`).
     ``computed`` (a flat mask) marks a partial dataset: it adds a ``pending`` variable and the
     global attributes ``partial = 1`` and ``points_done``.
     """
-    dims_map = study.dims()
+    dims_map = study.result_dims()
     dims = tuple(dims_map)
     shape = study.shape
+    grid_dims = tuple(study.dims())
+    grid_shape = study.grid_shape
+    if study.sweep is not None:
+        # Work order -> the results' C order (a sweep's lines run along the swept axis).
+        where = study.result_index(0, study.size)
+        cols = {k: _to_result_order(np.asarray(v), where) for k, v in cols.items()}
+        if computed is not None:
+            computed = _to_result_order(np.asarray(computed), where)
     coords: dict[str, Any] = {k: (k, v, _attrs(k)) for k, v in dims_map.items()}
     for k, v in study.scalars().items():
         coords[k] = ((), v, _attrs(k))
+    if study.initial is not None and study.n_initial == 1:
+        coords["initial"] = ((), study.initial_labels()[0], _attrs("initial"))
     coords["stop"] = ("stop", np.array([1, 2], dtype=np.int8), _attrs("stop"))
     if study.is_physical:
         # Results carry the model's parameters too (γ_r next to Hz, and the rest).
-        pts = list(study.iter_points())
-        cells = study.cells(0, study.size)
+        pts = study.points(0, study.grid_size, grid=True)
+        cells = study.cells(0, study.grid_size, grid=True)
         derived = {k: np.array([p[k] for p in pts], dtype=np.float64) for k in _DERIVED}
         # U_g of each point: per frequency (a table, base acceleration) or the cell's own.
         derived["base_amplitude_m"] = np.array([c.base_amplitude_at(f) for c, f in cells])
@@ -105,8 +122,8 @@ def results_from_records(
             attrs["long_name"] += " (derived from the physical cell, docs/model.md section 8)"
             if k in coords:
                 continue
-            arr, kept = v.reshape(shape), list(dims)
-            for ax in reversed(range(len(dims))):  # keep only the dims it varies along
+            arr, kept = v.reshape(grid_shape), list(grid_dims)
+            for ax in reversed(range(len(grid_dims))):  # keep only the dims it varies along
                 if np.all(arr == arr.take([0], axis=ax)):
                     arr = arr.take(0, axis=ax)
                     kept.pop(ax)
@@ -142,10 +159,16 @@ def results_from_records(
             data_vars[name] = (dims, a.reshape(shape), attrs)
     if study.is_physical and "amplitude" in data_vars:
         # Metres as well as units of B; B = U_g/(θγ_s) differs from point to point.
-        scale = np.array([c.length_scale_m(f) for c, f in cells]).reshape(shape)
+        scale = np.array([c.length_scale_m(f) for c, f in cells]).reshape(grid_shape)
         var = PHYSICAL_VARIABLES["amplitude_m"]
         attrs = {"units": var.units, "long_name": var.long_name}
         data_vars["amplitude_m"] = (dims, data_vars["amplitude"][1] * scale, attrs)
+    if study.sweep is not None:
+        var = SWEEP_VARIABLES["started_from"]
+        a = np.array([str(x) for x in cols["started_from"]], dtype=object)
+        data_vars["started_from"] = (
+            dims, a.reshape(shape), {"units": var.units, "long_name": var.long_name}
+        )  # fmt: skip
     provenance = provenance_attrs()
     attrs = {
         "Conventions": "CF-1.8",
@@ -174,7 +197,24 @@ def results_from_records(
         attrs["partial"] = np.int8(1)
         attrs["points_done"] = int(np.sum(computed))
         attrs["comment"] += "; partial dataset: pending = 1 marks points not computed yet"
-    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
+    if study.is_extended:
+        attrs["initial_states"] = " ".join(study.initial_labels())
+        if study.sweep is not None:
+            attrs["sweep_axis"] = study.sweep.axis
+            attrs["sweep_directions"] = " ".join(study.directions())
+    ds = xr.Dataset(data_vars, coords=coords, attrs=attrs)
+    if "outcome" in ds and any(d in ds.dims for d in ("initial", "direction")):
+        tol = study.outputs.tol_db()
+        ds["responses"] = count_responses(ds, tol)
+        ds.attrs["coexistence_tol_db"] = tol
+    return ds
+
+
+def _to_result_order(a: np.ndarray, where: np.ndarray) -> np.ndarray:
+    """Per-point values in work order placed at their results' flat index ``where``."""
+    out = np.empty_like(a)
+    out[where] = a
+    return out
 
 
 # --------------------------------------------------------------------------- NetCDF
@@ -184,7 +224,7 @@ def encoding(ds: xr.Dataset) -> dict[str, dict[str, Any]]:
     """NetCDF encoding: zlib everywhere it applies, fill values for missing, no NaN on disk."""
     enc: dict[str, dict[str, Any]] = {}
     for name in ds.data_vars:
-        var = VARIABLES.get(str(name))
+        var = VARIABLES.get(str(name)) or SWEEP_VARIABLES.get(str(name))
         dt = ds[name].dtype
         kind = var.kind if var else {"O": "str", "b": "bool"}.get(dt.kind, "float")
         if kind == "str":

@@ -7,6 +7,13 @@ chunks of consecutive grid points (one ``worker.simulate.simulate_chunk`` call p
 finished chunk is written to the store as soon as it arrives, so a rerun after a crash computes
 only what is missing. Results do not depend on the chunk size: each point is computed on its own.
 
+A sweep (``sweep:`` in the study) is computed line by line: a line is one initial state × one
+direction × one combination of the other axes, its points along the swept axis in sweep order,
+each starting from the previous one's final state. Lines are contiguous in the runner's flat
+index ("work order", :meth:`~service.studies.schema.Study.work_indices`), so a chunk is exactly
+one line (one ``worker.simulate.simulate_line`` call per task) and a killed run resumes line by
+line; lines run in parallel like chunks.
+
 A :class:`StudyRun` is one study's side of a run (its store, the chunks still to compute, what
 came back); a :class:`ChunkPool` keeps a bounded window of tasks on the cluster and fills it
 round-robin over every study added to it, so several studies share the cluster fairly (the
@@ -38,7 +45,13 @@ from service.studies.dataset import open_results, results_from_records, summariz
 from service.studies.schema import Study
 from service.studies.variables import OUTCOMES, outcome_names
 from worker import simulate
-from worker.simulate import PointLimits, SolverSettings, failed_result, simulate_chunk
+from worker.simulate import (
+    PointLimits,
+    SolverSettings,
+    failed_result,
+    simulate_chunk,
+    simulate_line,
+)
 from worker.solvers.settings import DEFAULT_METHOD
 
 __all__ = [
@@ -191,12 +204,27 @@ class StudyRun:
         if progress and not self.reused:
             progress(self.done, self.total)
 
+    @property
+    def lines(self) -> bool:
+        """Whether chunks are sweep lines (``simulate_line``), not independent points."""
+        return self.study.sweep is not None
+
     def plan(self, workers: int) -> None:
-        """Cut the missing points into chunks for ``workers`` (before any chunk went out)."""
+        """Cut the missing points into chunks for ``workers`` (before any chunk went out); a
+        sweep's chunks are its whole lines, whatever ``chunk_size`` says."""
         n = self.n_missing
-        self.chunk = (
-            default_chunk_size(n, workers) if self._chunk_size is None else self._chunk_size
-        )
+        if self.lines:
+            self.chunk = self.study.line_length
+            for a, b in self._missing:
+                if a % self.chunk or b % self.chunk:
+                    raise ValueError(
+                        f"study {self.study.id}: stored chunks cover part of a sweep line "
+                        f"(points {a}-{b} missing, lines of {self.chunk}); remove its chunks"
+                    )
+        else:
+            self.chunk = (
+                default_chunk_size(n, workers) if self._chunk_size is None else self._chunk_size
+            )
         self.pieces = deque(iter_chunk_ranges(self._missing, self.chunk))  # refuses chunk < 1
 
     @property
@@ -221,7 +249,8 @@ class StudyRun:
             if cancel():
                 raise Cancelled
             start, stop = self.pieces.popleft()
-            records = simulate_chunk(self.study.points(start, stop), self.solver, budget, cancel)
+            run = simulate_line if self.lines else simulate_chunk
+            records = run(self.study.points(start, stop), self.solver, budget, cancel)
             if len(records) < stop - start:  # cancelled inside the chunk
                 raise Cancelled
             self.finished(start, stop, records, False)
@@ -288,9 +317,12 @@ def _chunk_task(
     solver: dict[str, Any],
     limits: dict[str, Any],
     cancel_event: str,
+    line: bool = False,
 ) -> list[dict[str, Any]]:
-    """One dask task: ``simulate_chunk`` with the study's cancel event polled inside."""
-    return simulate_chunk(points, solver, limits, _CancelProbe(cancel_event))
+    """One dask task: ``simulate_chunk`` (``line``: ``simulate_line``, one sweep line) with the
+    study's cancel event polled inside."""
+    run = simulate_line if line else simulate_chunk
+    return run(points, solver, limits, _CancelProbe(cancel_event))
 
 
 class ChunkPool:
@@ -358,6 +390,7 @@ class ChunkPool:
                 run.solver,
                 self.limits,
                 self._events[key],
+                run.lines,
                 key=f"impactcell-{run.study.id}-{start}-{stop}-{self._tag}",
                 retries=TASK_RETRIES,
                 pure=False,
@@ -437,7 +470,7 @@ def run_study(
     workers : int, optional
         Worker processes of the embedded cluster (default: one per core).
     chunk_size : int, optional
-        Points per task (default :func:`default_chunk_size`).
+        Points per task (default :func:`default_chunk_size`); a sweep's tasks are its lines.
     client : distributed.Client, optional
         Use this client (not closed here); overrides ``scheduler``/``workers``.
     serial : bool

@@ -14,6 +14,13 @@ Validation reports every problem it can find in one go, each with its path in th
 arithmetic (:meth:`Study.sizes`): the point limit is checked, and ``size``/``shape`` are
 known, without building any axis; a physical grid's model parameters are checked at its
 corners.
+
+A study may also name initial states (``initial:``) and a sweep along one grid axis
+(``sweep:``); both are absent by default, so a study without them keeps its id and results.
+Then :attr:`Study.size` counts every computation (initial states × directions × grid points),
+the results get ``initial``/``direction`` dimensions before the grid's (:meth:`Study.result_dims`),
+and the runner's flat index is "work order" (:meth:`Study.work_indices`), in which each sweep
+line is contiguous; :meth:`Study.result_index` maps it onto the results.
 """
 
 from __future__ import annotations
@@ -31,14 +38,18 @@ import numpy as np
 from pydantic import Field, PrivateAttr, ValidationError
 
 from service.studies.files import read_study_file
-from service.studies.grid import AXIS_TAGS, Range, StrictModel, axis_size, axis_values
+from service.studies.grid import AXIS_TAGS, Range, Real, StrictModel, axis_size, axis_values
 from service.studies.specs import (
     PER_FREQUENCY_FIELDS,
     AmplitudeTable,
     Grid,
+    InitialSpec,
     ModelSpec,
     PhysicalSpec,
     SolverSpec,
+    SweepSpec,
+    initial_labels,
+    initial_states,
 )
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
 from worker.model import CellParams
@@ -46,6 +57,7 @@ from worker.physical import CELL_FIELDS, PhysicalCell
 from worker.simulate import SOLVER_VERSION
 
 __all__ = [
+    "DEFAULT_COEXISTENCE_TOL_DB",
     "DEFAULT_MAX_POINTS",
     "Grid",
     "ModelSpec",
@@ -53,6 +65,7 @@ __all__ = [
     "PhysicalSpec",
     "SolverSpec",
     "Study",
+    "SweepSpec",
     "StudyError",
     "load_study",
     "parse_study",
@@ -62,6 +75,9 @@ __all__ = [
 
 # The grid-size limit when none is given (``Settings.max_points``, ``--max-points``).
 DEFAULT_MAX_POINTS = 2_000_000
+#: Two responses at one grid point whose Γ differ by less than this (dB) are the same one
+#: (``outputs.coexistence_tol_db``; irregular ones: within 3 combined standard errors).
+DEFAULT_COEXISTENCE_TOL_DB = 0.05
 
 # --------------------------------------------------------------------------- the study
 
@@ -80,6 +96,22 @@ class Outputs(StrictModel):
     effective_mass: bool = True
     response: bool = True
     contact: bool = False
+    # Absent by default (None: ``DEFAULT_COEXISTENCE_TOL_DB``), so existing ids are unchanged.
+    coexistence_tol_db: Real | None = Field(
+        None,
+        gt=0,
+        le=100,
+        description=(
+            "Responses at one grid point whose transmittance differs by less than this (dB) "
+            "are counted as one in `responses` (default 0.05); studies with several initial "
+            "states or sweep directions."
+        ),
+    )
+
+    def tol_db(self) -> float:
+        """The coexistence tolerance in dB (the default when not given)."""
+        tol = self.coexistence_tol_db
+        return DEFAULT_COEXISTENCE_TOL_DB if tol is None else float(tol)
 
 
 class Study(StrictModel):
@@ -95,6 +127,9 @@ class Study(StrictModel):
     outputs: Outputs = Outputs()
     physical: PhysicalSpec | None = None
     grid: Grid
+    # Absent by default, so existing ids are unchanged (docs: README "Study files").
+    sweep: SweepSpec | None = None
+    initial: InitialSpec | None = None
     _axes: dict[str, np.ndarray] | None = PrivateAttr(None)
     _amplitudes: np.ndarray | None = PrivateAttr(None)
 
@@ -148,26 +183,129 @@ class Study(StrictModel):
         return {k: axis_size(given[k]) for k in order if k in given}
 
     @property
-    def shape(self) -> tuple[int, ...]:
-        """Shape of the results (one entry per varying axis)."""
+    def grid_shape(self) -> tuple[int, ...]:
+        """Shape of the grid (one entry per varying axis)."""
         return tuple(n for n in self.sizes().values() if n > 1)
 
     @property
-    def size(self) -> int:
-        """Number of points."""
+    def grid_size(self) -> int:
+        """Number of grid points."""
         return math.prod(self.sizes().values())
 
-    def _indices(self, start: int, stop: int) -> dict[str, np.ndarray]:
-        """Each axis's value index of points ``start:stop`` (flat C-order index)."""
-        axes = self.axes()
-        shape = tuple(v.size for v in axes.values())
-        idx = np.unravel_index(np.arange(start, stop), shape)
-        return dict(zip(axes, idx, strict=True))
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Shape of the results: ``initial`` (several initial states), ``direction`` (a
+        sweep), then one entry per varying grid axis."""
+        return (*self._lead_shape(), *self.grid_shape) if self.is_extended else self.grid_shape
 
-    def coords_at(self, start: int, stop: int) -> dict[str, np.ndarray]:
-        """Axis values of points ``start:stop`` (flat C-order index), name -> array."""
+    @property
+    def size(self) -> int:
+        """Number of points to compute (initial states × directions × grid points)."""
+        return self.n_initial * self.n_directions * self.grid_size
+
+    # ---------------------------------------------------------------- initial states, sweeps
+
+    @property
+    def is_extended(self) -> bool:
+        """Whether the study names initial states or a sweep (results beyond the grid)."""
+        return self.sweep is not None or self.initial is not None
+
+    def initial_labels(self) -> list[str]:
+        """Labels of the initial states (``["rest"]`` when none is given)."""
+        return initial_labels(self.initial)
+
+    @property
+    def n_initial(self) -> int:
+        """How many initial states each grid point (or sweep line) starts from."""
+        return len(self.initial_labels())
+
+    def directions(self) -> list[str]:
+        """The sweep's directions in order (empty without a sweep)."""
+        return [] if self.sweep is None else list(self.sweep.directions)
+
+    @property
+    def n_directions(self) -> int:
+        """How many sweep directions (1 without a sweep)."""
+        return max(1, len(self.directions()))
+
+    @property
+    def line_length(self) -> int:
+        """Points of one sweep line (the swept axis's size); 1 without a sweep."""
+        return 1 if self.sweep is None else self.sizes()[self.sweep.axis]
+
+    def _lead_shape(self) -> tuple[int, ...]:
+        lead = (self.n_initial,) if self.n_initial > 1 else ()
+        return (*lead, self.n_directions) if self.sweep is not None else lead
+
+    def result_dims(self) -> dict[str, np.ndarray]:
+        """The dataset's dimensions in order, name -> values: ``initial`` (labels, when more
+        than one), ``direction`` (a sweep's, ``up``/``down``), then :meth:`dims`."""
+        out: dict[str, np.ndarray] = {}
+        if self.n_initial > 1:
+            out["initial"] = np.array(self.initial_labels())
+        if self.sweep is not None:
+            out["direction"] = np.array(self.directions())
+        return {**out, **self.dims()}
+
+    def _sweep_orders(self) -> np.ndarray:
+        """Grid value index of each step of a line, one row per direction (up: increasing
+        values of the swept axis, down: decreasing)."""
+        assert self.sweep is not None
+        up = np.argsort(self.axes()[self.sweep.axis], kind="stable")
+        rows = {"up": up, "down": up[::-1]}
+        return np.stack([rows[d] for d in self.directions()])
+
+    def work_indices(
+        self, start: int, stop: int
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Initial-state index, direction index and each grid axis's value index of points
+        ``start:stop`` in work order.
+
+        Work order is the runner's flat index (chunk files): initial-major, then direction,
+        then the grid's C order, except that in a sweep the swept axis varies fastest and in
+        sweep order, so every line (one initial state × one direction × one combination of
+        the other axes) is contiguous. Without a sweep or initial states it is the grid's C
+        order.
+        """
+        w = np.arange(start, stop, dtype=np.int64)
+        sizes = self.sizes()
+        names = list(sizes)
+        ni, nd = self.n_initial, self.n_directions
+        if self.sweep is None:
+            parts = np.unravel_index(w, (ni, nd, *sizes.values()))
+            idx = dict(zip(names, parts[2:], strict=True))
+        else:
+            axis = self.sweep.axis
+            others = [n for n in names if n != axis]
+            shape = (ni, nd, *(sizes[n] for n in others), sizes[axis])
+            parts = np.unravel_index(w, shape)
+            found = dict(zip(others, parts[2:-1], strict=True))
+            found[axis] = self._sweep_orders()[parts[1], parts[-1]]
+            idx = {n: found[n] for n in names}
+        return parts[0], parts[1], idx
+
+    def result_index(self, start: int, stop: int) -> np.ndarray:
+        """Flat C-order index in the results' shape (:attr:`shape`) of work points
+        ``start:stop``; over the whole study a bijection."""
+        i, d, idx = self.work_indices(start, stop)
+        full = (self.n_initial, self.n_directions, *self.sizes().values())
+        return np.ravel_multi_index((i, d, *idx.values()), full)
+
+    def _indices(self, start: int, stop: int, grid: bool = False) -> dict[str, np.ndarray]:
+        """Each axis's value index of points ``start:stop`` (work order, or with ``grid`` the
+        grid's flat C order)."""
+        if grid or not self.is_extended:
+            axes = self.axes()
+            shape = tuple(v.size for v in axes.values())
+            idx = np.unravel_index(np.arange(start, stop), shape)
+            return dict(zip(axes, idx, strict=True))
+        return self.work_indices(start, stop)[2]
+
+    def coords_at(self, start: int, stop: int, *, grid: bool = False) -> dict[str, np.ndarray]:
+        """Grid-axis values of points ``start:stop`` (work order, or with ``grid`` the
+        grid's flat C order), name -> array."""
         axes = self.axes()
-        return {k: axes[k][i] for k, i in self._indices(start, stop).items()}
+        return {k: axes[k][i] for k, i in self._indices(start, stop, grid).items()}
 
     def base_amplitudes_m(self) -> np.ndarray | None:
         """A physical study's base amplitude at each value of ``frequency_hz`` (in the axis's
@@ -187,14 +325,17 @@ class Study(StrictModel):
             self._amplitudes = amps
         return self._amplitudes
 
-    def cells(self, start: int, stop: int) -> list[tuple[PhysicalCell, float]]:
-        """A physical study's points ``start:stop`` as (SI cell, frequency in Hz) pairs."""
+    def cells(
+        self, start: int, stop: int, *, grid: bool = False
+    ) -> list[tuple[PhysicalCell, float]]:
+        """A physical study's points ``start:stop`` (work order, or with ``grid`` the grid's
+        C order) as (SI cell, frequency in Hz) pairs."""
         assert self.physical is not None, "cells() is for physical studies"
-        cols = self.coords_at(start, stop)
+        cols = self.coords_at(start, stop, grid=grid)
         base = self.physical.cell_fields()
         amps = self.base_amplitudes_m()
         # Per-frequency amplitudes: each point takes its frequency's value as U_g.
-        at_f = None if amps is None else amps[self._indices(start, stop)["frequency_hz"]]
+        at_f = None if amps is None else amps[self._indices(start, stop, grid)["frequency_hz"]]
         out = []
         for i in range(stop - start):
             fields = {**base, **{k: float(v[i]) for k, v in cols.items()}}
@@ -204,29 +345,35 @@ class Study(StrictModel):
             out.append((PhysicalCell(**fields), f))
         return out
 
-    def length_scales_m(self, start: int, stop: int) -> np.ndarray:
+    def length_scales_m(self, start: int, stop: int, *, grid: bool = False) -> np.ndarray:
         """A physical study's length unit ``B = U_g/(θγ_s)`` (m) at points ``start:stop``:
         model lengths (``amplitude``, gaps) times B are metres."""
-        return np.array([c.length_scale_m(f) for c, f in self.cells(start, stop)])
+        return np.array([c.length_scale_m(f) for c, f in self.cells(start, stop, grid=grid)])
 
-    def points(self, start: int, stop: int) -> list[dict[str, Any]]:
-        """``CellParams`` keyword dicts of points ``start:stop`` (flat C-order index)."""
+    def points(self, start: int, stop: int, *, grid: bool = False) -> list[dict[str, Any]]:
+        """``CellParams`` keyword dicts of points ``start:stop`` in work order (with ``grid``:
+        grid points in the grid's C order). When the study names initial states, each work
+        point also carries its ``initial`` (``kind``, ``seed``, ``index``: the worker's)."""
         m = self.model
         common: dict[str, Any] = {"modes": m.modes, "coupling": m.coupling}
         if m.xi_b is not None:
             common["xi_b"] = m.xi_b
-        out = []
+        out: list[dict[str, Any]] = []
         if self.is_physical:
-            return [{**c.to_model(f), **common} for c, f in self.cells(start, stop)]
-        cols = self.coords_at(start, stop)
-        n = stop - start
-        for i in range(n):
-            row = {k: float(v[i]) for k, v in cols.items()}
-            if "gap" in row:
-                g = row.pop("gap")
-                row["g1"] = row["g2"] = g
-            row.setdefault("xi", m.xi)
-            out.append({**row, **common})
+            out = [{**c.to_model(f), **common} for c, f in self.cells(start, stop, grid=grid)]
+        else:
+            cols = self.coords_at(start, stop, grid=grid)
+            for i in range(stop - start):
+                row = {k: float(v[i]) for k, v in cols.items()}
+                if "gap" in row:
+                    g = row.pop("gap")
+                    row["g1"] = row["g2"] = g
+                row.setdefault("xi", m.xi)
+                out.append({**row, **common})
+        if self.initial is not None and not grid:
+            states = initial_states(self.initial)
+            for p, k in zip(out, self.work_indices(start, stop)[0], strict=True):
+                p["initial"] = dict(states[int(k)])
         return out
 
     def iter_points(self, chunk: int = 4096) -> Iterator[dict[str, Any]]:
@@ -238,12 +385,42 @@ class Study(StrictModel):
 
     def problems(self, max_points: int | None = None) -> list[tuple[str, str]]:
         """Cross-field problems: (path, message) pairs; empty when the study is sound."""
-        return _grid_problems(
+        out = _grid_problems(
             self.grid,
             self.physical,
             explicit_xi="xi" in self.model.model_fields_set,
             max_points=max_points,
+            lead=self._lead_sizes(),
         )
+        if self.sweep is not None:
+            out += _sweep_problems(self.sweep, self.grid)
+        return out
+
+    def _lead_sizes(self) -> dict[str, int]:
+        """Sizes of the dimensions before the grid's (initial states, directions)."""
+        lead: dict[str, int] = {}
+        if self.n_initial > 1:
+            lead["initial"] = self.n_initial
+        if self.sweep is not None and self.n_directions > 1:
+            lead["direction"] = self.n_directions
+        return lead
+
+
+def _sweep_problems(sweep: SweepSpec, grid: Grid) -> list[tuple[str, str]]:
+    """A sweep's axis must be a varying axis of the grid."""
+    sizes = {k: axis_size(v) for k, v in grid.given().items()}
+    varying = [k for k, n in sizes.items() if n > 1]
+    choices = (
+        f"sweep along one of its varying axes: {', '.join(varying)}"
+        if varying
+        else "the grid has no varying axis to sweep along"
+    )
+    if sweep.axis not in sizes:
+        return [("sweep.axis", f"{sweep.axis!r} is not an axis of the grid; {choices}")]
+    if sizes[sweep.axis] < 2:
+        return [("sweep.axis", f"{sweep.axis!r} has one value, so there is nothing to sweep; "
+                 f"{choices}")]  # fmt: skip
+    return []
 
 
 def _presence_problems(given: set[str]) -> list[tuple[str, str]]:
@@ -272,6 +449,7 @@ def _grid_problems(
     *,
     explicit_xi: bool,
     max_points: int | None,
+    lead: Mapping[str, int] | None = None,
 ) -> list[tuple[str, str]]:
     limit = DEFAULT_MAX_POINTS if max_points is None else max_points
     out: list[tuple[str, str]] = []
@@ -337,6 +515,9 @@ def _grid_problems(
     # Sizes, not values: a grid of 10⁹ points is refused without building an axis.
     sizes = {k: axis_size(v) for k, v in given.items()}
     size = math.prod(sizes.values()) if given else 0
+    if lead:  # initial states × directions × grid points: what the runner computes
+        size *= math.prod(lead.values())
+        sizes = {**lead, **sizes}
     if size > limit:
         axes = " × ".join(f"{k} {n:,}" for k, n in sizes.items() if n > 1)
         out.append(("grid", f"has {size:,} points, more than the limit of {limit:,} ({axes})"))
@@ -549,6 +730,11 @@ def parse_study(data: Any, *, max_points: int | None = None, source: str = "stud
                         # cell could not be built, which its bad fields already say)
                         if pr[0] not in seen and not (pr[0] == "physical" and bad)
                     ]
+                    sweep = data.get("sweep")
+                    if isinstance(sweep, Mapping) and not any(
+                        p == "sweep" or p.startswith("sweep.") for p, _ in problems
+                    ):
+                        problems += _sweep_problems(SweepSpec.model_validate(sweep), grid)
             elif "physical" not in data:
                 problems += _presence_problems(set(data["grid"]))
         raise StudyError(problems, source) from None

@@ -23,6 +23,7 @@ from pydantic import (
     AfterValidator,
     BeforeValidator,
     Field,
+    ValidationError,
     ValidationInfo,
     create_model,
     field_validator,
@@ -46,15 +47,23 @@ from worker.simulate import SolverSettings
 
 __all__ = [
     "AXIS_BOUNDS",
+    "DIRECTIONS",
+    "INITIAL_KINDS",
+    "MAX_RANDOM_INITIAL",
     "MAX_STEPS_PER_POINT",
     "PER_FREQUENCY_FIELDS",
     "STUDY_SOLVER_CAPS",
     "AmplitudeTable",
     "Grid",
+    "InitialSpec",
     "ModelSpec",
     "PhysicalSpec",
+    "RandomInitial",
     "SolverSpec",
+    "SweepSpec",
     "field_docs",
+    "initial_labels",
+    "initial_states",
     "spec_model",
 ]
 
@@ -496,3 +505,127 @@ Grid = create_model(
         for axis in (*MODEL_AXES, *PHYSICAL_AXES)
     },
 )  # fmt: skip
+
+
+# --------------------------------------------------------------------------- sweeps, initial
+
+#: The directions a sweep may run in (``up``: increasing values of the swept axis).
+DIRECTIONS: tuple[str, ...] = ("up", "down")
+#: The initial states a study may name (besides ``{random: N, seed: S}``).
+INITIAL_KINDS: tuple[str, ...] = ("rest", "linear")
+#: The most random initial states a study may ask for.
+MAX_RANDOM_INITIAL = 64
+
+
+class SweepSpec(StrictModel):
+    """A sweep along one grid axis: each point starts from the previous point's final state.
+
+    ``axis`` is a varying grid axis; ``directions`` lists ``up`` (increasing values) and/or
+    ``down``, in the order the results' ``direction`` dimension takes them.
+    """
+
+    axis: str = Field(min_length=1, max_length=100, description="The grid axis swept along.")
+    directions: list[Literal["up", "down"]] = Field(
+        ["up", "down"],
+        min_length=1,
+        max_length=2,
+        description="Sweep directions: up (increasing values), down, or both (default).",
+    )
+
+    @field_validator("directions")
+    @classmethod
+    def _distinct(cls, values: list[str]) -> list[str]:
+        if len(set(values)) != len(values):
+            raise ValueError(f"directions must be distinct, got {values}")
+        return values
+
+
+class RandomInitial(StrictModel):
+    """``N`` seeded random initial states around the linear steady state (``random-0`` …)."""
+
+    random: Integer = Field(
+        description=f"How many random initial states (1…{MAX_RANDOM_INITIAL}).",
+        json_schema_extra={"minimum": 1, "maximum": MAX_RANDOM_INITIAL},
+    )
+    seed: Integer = Field(
+        0, description="Seed of the random states.", json_schema_extra={"minimum": 0}
+    )
+
+    @field_validator("random")
+    @classmethod
+    def _count(cls, n: int) -> int:
+        if not 1 <= n <= MAX_RANDOM_INITIAL:
+            raise ValueError(f"random must be an integer in 1…{MAX_RANDOM_INITIAL}, got {n}")
+        return n
+
+    @field_validator("seed")
+    @classmethod
+    def _seed(cls, s: int) -> int:
+        if not 0 <= s < 2**32:
+            raise ValueError(f"seed must be an integer in 0…{2**32 - 1}, got {s}")
+        return s
+
+
+_INITIAL_HINT = "give rest, linear, a list of them ([rest, linear]) or {random: N, seed: S}"
+
+
+def _initial(value: Any) -> Any:
+    """Clear messages for a malformed ``initial`` (the union's own errors list every branch)."""
+    if isinstance(value, str):
+        if value not in INITIAL_KINDS:
+            raise ValueError(f"unknown initial state {shown(value)}; {_INITIAL_HINT}")
+        return value
+    if isinstance(value, (list, tuple)):
+        if not value:
+            raise ValueError(f"must not be empty; {_INITIAL_HINT}")
+        for i, v in enumerate(value):
+            if isinstance(v, Mapping) or (isinstance(v, str) and v.startswith("random")):
+                raise ValueError(
+                    f"[{i}]: random states cannot be mixed into a list; give "
+                    "{random: N, seed: S} on its own"
+                )
+            if v not in INITIAL_KINDS:
+                raise ValueError(f"[{i}]: unknown initial state {shown(v)}; {_INITIAL_HINT}")
+        if len(set(value)) != len(value):
+            raise ValueError(f"initial states must be distinct, got {list(value)}")
+        return list(value)
+    if isinstance(value, RandomInitial):
+        return value
+    if isinstance(value, Mapping):
+        try:
+            return RandomInitial.model_validate(value)
+        except ValidationError as exc:  # one message, not one per branch of the union
+            parts = []
+            for e in exc.errors():
+                where = ".".join(str(x) for x in e["loc"])
+                msg = "unknown key" if e["type"] == "extra_forbidden" else str(e["msg"])
+                parts.append(f"{where}: {msg.removeprefix('Value error, ')}")
+            raise ValueError("; ".join(parts)) from None
+    raise ValueError(f"got {shown(value)}; {_INITIAL_HINT}")
+
+
+#: ``initial:`` of a study: one state, a list of them, or seeded random states.
+InitialSpec = Annotated[
+    Literal["rest", "linear"] | list[Literal["rest", "linear"]] | RandomInitial,
+    BeforeValidator(_initial),
+]
+
+
+def initial_labels(initial: Any) -> list[str]:
+    """The labels of a study's initial states (``rest`` when none is given)."""
+    if initial is None:
+        return ["rest"]
+    if isinstance(initial, str):
+        return [initial]
+    if isinstance(initial, RandomInitial):
+        return [f"random-{k}" for k in range(initial.random)]
+    return list(initial)
+
+
+def initial_states(initial: Any) -> list[dict[str, Any]]:
+    """The worker's ``initial`` dicts (``kind``, ``seed``, ``index``), one per label."""
+    if isinstance(initial, RandomInitial):
+        return [{"kind": "random", "seed": initial.seed, "index": k} for k in range(initial.random)]
+    return [
+        {"kind": kind, "seed": None, "index": k} for k, kind in enumerate(initial_labels(initial))
+    ]

@@ -33,6 +33,7 @@ __all__ = [
     "PHYSICAL_AXES",
     "PHYSICAL_FIELDS",
     "PHYSICAL_VARIABLES",
+    "SWEEP_VARIABLES",
     "VARIABLES",
     "AxisInfo",
     "Variable",
@@ -107,6 +108,12 @@ AXES: dict[str, AxisInfo] = {
     "base_amplitude_m": AxisInfo("m", "base displacement amplitude U_g"),
     "base_acceleration_m_s2": AxisInfo("m s-2", "base acceleration amplitude"),
     "stop": AxisInfo("1", "stop index (1 or 2)", "stop"),
+    "initial": AxisInfo("1", "initial state the point (or its sweep line) started from: rest, "
+                        "linear (closed-form steady state of the cell without stops, at "
+                        "tau = 0) or random-<k> (seeded, around the linear one)", "initial"),
+    "direction": AxisInfo("1", "sweep direction along the swept axis: up (increasing values) "
+                          "or down; each point starts from the final state of the previous "
+                          "point of its line", "direction"),
 }  # fmt: skip
 
 
@@ -222,6 +229,29 @@ PHYSICAL_VARIABLES: dict[str, Variable] = {
         "transmittance", "float", "m",
         "displacement amplitude of the outer mass in metres, amplitude times B = U_g / "
         "(theta gamma_s) (docs/model.md section 8)",
+    ),
+}  # fmt: skip
+
+
+# Variables of studies with initial states or a sweep (docs: README "Study files"). Not in
+# VARIABLES: a study without either has exactly the datasets it always had.
+# ``started_from`` is reported by each point of a sweep line (chunk files keep it);
+# ``responses`` is derived when the dataset is assembled (service.studies.coexistence).
+SWEEP_VARIABLES: dict[str, Variable] = {
+    "started_from": Variable(
+        "", "str", "1",
+        "state the point started from: initial (the study's initial state: the first point of "
+        "a sweep line) or previous (the final state of the previous point of its sweep line, "
+        "at forcing phase 0); empty where unknown (a failed task, a pending point)",
+        mask=False,
+    ),
+    "responses": Variable(
+        "", "int", "1",
+        "number of distinct steady responses found at this grid point across initial states "
+        "and sweep directions: distinct by outcome, response period and transmittance (more "
+        "than coexistence_tol_db apart; irregular ones more than 3 combined standard errors); "
+        "failed, unsettled and pending points are not counted",
+        mask=False,
     ),
 }  # fmt: skip
 

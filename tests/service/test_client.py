@@ -232,3 +232,30 @@ def test_bandgap_map_of_another_variable_and_the_default_threshold() -> None:
     ds = c.bandgap_map("abc12345")
     assert ds.attrs["variable"] == "transmittance_db"
     np.testing.assert_array_equal(ds["transmittance_db"].values, [1.0, 2.0, np.nan])
+
+
+def test_hysteresis_sends_only_what_is_given_and_plot_names_the_kind() -> None:
+    doc = {"x": "gap", "branches": [{"label": "up"}, {"label": "down"}], "jumps": []}
+    svc = Recorder({
+        ("GET", "/studies/abc12345/hysteresis"): httpx.Response(200, json=doc),
+        ("GET", "/studies/abc12345/plots/hysteresis.png"): httpx.Response(200, content=b"PNG"),
+    })  # fmt: skip
+    c = svc.client()
+    assert c.hysteresis("abc12345") == doc
+    params = svc.seen[-1].url.params
+    # the service picks x (the swept axis) and its thresholds
+    assert dict(params) == {"variable": "transmittance_db", "nearest": "false"}
+    c.hysteresis("abc12345", x="gamma_r", jump_db=2.0, tol_db=0.1, direction="up", gap=0.3)
+    params = svc.seen[-1].url.params
+    assert (params["x"], params["jump_db"], params["tol_db"]) == ("gamma_r", "2.0", "0.1")
+    assert params["direction"] == "up" and params["gap"] == "0.3"
+    svc.answers[("GET", "/studies/abc12345/hysteresis")] = httpx.Response(200, text="branch\n")
+    assert c.hysteresis_csv("abc12345", initial="rest") == "branch\n"
+    assert svc.seen[-1].url.params["format"] == "csv"
+    assert c.plot("abc12345", "hysteresis", tol_db=0.2) == b"PNG"
+    assert svc.seen[-1].url.params["tol_db"] == "0.2"
+    svc.answers[("GET", "/studies/abc12345/hysteresis")] = httpx.Response(
+        422, json={"detail": "this study has no sweep or several starts: no hysteresis"}
+    )
+    with pytest.raises(InvalidRequest, match="no sweep or several starts"):
+        c.hysteresis("abc12345")

@@ -33,6 +33,10 @@ Every result also carries the linear reference ``transmittance_linear_db`` (Γ_l
 form of the same cell without stops, ``LinearTail.steady``) and ``impact_effect_db`` = Γ − Γ_lin
 (exactly 0 for ``linear``; ``None`` where Γ or Γ_lin is missing). A ``failed`` point keeps Γ_lin.
 
+Every result that is not ``failed`` carries ``final_state``: the state at a period boundary
+(forcing phase 0) of what it reports — the orbit's start, the closed-form steady state, or the
+end of the run for ``irregular``/``unsettled`` — which a sweep line hands to its next point.
+
 Between batches the engine checks the point's limits and the caller's ``cancelled`` callback
 (``PointCancelled``). A batch is shortened when periods are slow, so both are seen well within
 a second.
@@ -660,6 +664,10 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
         assert eng is not None and run is not None
         res = _statistics_result(eng, outcome, str(info or ""), common, kappa, theta)
         history_start = run.x.copy()
+    # the state a sweep line hands on: a period boundary of the reported response (the
+    # history, when asked for, starts there too)
+    if history_start is not None and not res.failed:
+        res.final_state = np.array(history_start, dtype=float)
     if history_periods and outcome != "failed" and settings.early_stop:
         if run is None:
             run = make_run()

@@ -137,6 +137,10 @@ class SolverSettings:
             )
 
 
+# PointResult fields kept out of records (arrays: records stay JSON-able and column-able)
+_NOT_IN_RECORD = ("history", "final_state")
+
+
 @dataclass
 class PointResult:
     """What one point reports (docs/model.md, "What a point reports").
@@ -153,6 +157,11 @@ class PointResult:
     (exactly 0 for a ``linear`` point). Both are ``None`` where no closed form exists (an
     undamped resonance). Γ_lin is a property of the cell, not a measurement, so a ``failed``
     point keeps it when it exists; its ``impact_effect_db`` is ``None``.
+
+    ``final_state`` is ``[u; q]`` at a period boundary (forcing phase 0) of the reported
+    response, what a sweep line hands to its next point: the orbit's start (``periodic``), the
+    closed-form steady state (``linear``), the state at the end of the run (``irregular``,
+    ``unsettled``); ``None`` for ``failed``. Like ``history`` it is not in :meth:`as_dict`.
     """
 
     outcome: str
@@ -177,6 +186,7 @@ class PointResult:
     transmittance_linear_db: float | None = None
     impact_effect_db: float | None = None
     history: dict[str, np.ndarray] | None = field(default=None, repr=False)
+    final_state: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def failed(self) -> bool:
@@ -189,8 +199,9 @@ class PointResult:
         return self.outcome in ("linear", "periodic")
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (no history); ``failed`` is included for the record's readers."""
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "history"}
+        """JSON-ready dict (no history, no final state); ``failed`` is included for the
+        record's readers."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _NOT_IN_RECORD}
         if self.impacts_per_period is not None:
             out["impacts_per_period"] = list(self.impacts_per_period)
         out["failed"] = self.failed

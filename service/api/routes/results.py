@@ -14,8 +14,10 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, Response
 
 from service.analysis.bands import bandgap_csv, bandgap_json, bandgap_map
+from service.analysis.hysteresis import fixed_of, hysteresis_csv, hysteresis_json, hysteresis_map
 from service.analysis.selection import (
     AnalysisError,
+    View,
     default_view,
     select,
     slice_csv,
@@ -43,7 +45,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 }
 # Query parameters with a meaning of their own; every other one selects a coordinate value.
 _RESERVED = {"variable", "reference", "nearest", "x", "y", "threshold_db", "hue", "periods",
-             "format"}  # fmt: skip
+             "format", "jump_db", "tol_db"}  # fmt: skip
 _NETCDF = "application/x-netcdf"
 _CSV = "text/csv; charset=utf-8"
 #: The most values a JSON or CSV slice (or bandgap map) holds; beyond, 422 says how to select.
@@ -345,6 +347,77 @@ def bandgap(
     return json_response(out)
 
 
+_JUMP_DOC = "a jump: consecutive points of a branch differ by more than this (units of variable)"
+_TOL_DOC = "the branches differ where their values spread over this (units of variable)"
+
+
+def _hysteresis(
+    study_id: str,
+    ds: xr.Dataset,
+    sel: dict[str, str],
+    x: str | None,
+    variable: str,
+    jump_db: float,
+    tol_db: float,
+    nearest: bool,
+) -> xr.Dataset:
+    """The hysteresis map of a request (422 for an AnalysisError or a map over the cap)."""
+    try:
+        h = hysteresis_map(ds, x, sel, nearest=nearest, variable=variable, jump_db=jump_db,
+                           tol_db=tol_db)  # fmt: skip
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
+    size = h.sizes["branch"] * h.sizes[h.attrs["x"]]
+    if size > MAX_SLICE_VALUES:
+        raise HTTPException(
+            422,
+            f"the hysteresis map would hold {size:,} values ({h.sizes['branch']} branches × "
+            f"{h.sizes[h.attrs['x']]:,} values of {h.attrs['x']}), over the limit of "
+            f"{MAX_SLICE_VALUES:,}; select initial=… or direction=… to keep fewer branches, or "
+            f"download everything as NetCDF from /studies/{study_id}/dataset",
+        )
+    return h
+
+
+@router.get(
+    "/hysteresis",
+    responses={
+        **_ERRORS,
+        200: {"content": {"application/json": {}, _CSV: {}}, "description": "the branches"},
+    },
+)
+def hysteresis(
+    request: Request,
+    study_id: StudyId,
+    settings: SettingsDep,
+    catalogue: CatalogueDep,
+    x: Annotated[str | None, Query(max_length=64)] = None,
+    variable: Annotated[str, Query(max_length=64)] = "transmittance_db",
+    jump_db: Annotated[float, Query(gt=0, le=1000, description=_JUMP_DOC)] = 1.0,
+    tol_db: Annotated[float, Query(ge=0, le=1000, description=_TOL_DOC)] = 0.05,
+    nearest: bool = False,
+    format: Literal["json", "csv"] = "json",  # noqa: A002 - the query parameter's name
+) -> Response:
+    """The hysteresis map of a sweep or multi-start study: every branch (``up``, ``down``,
+    each initial state, ``rest/up``, …) of ``variable`` along x, the jumps of each branch
+    (labelled ``J1``, …), where the branches differ by more than ``tol_db`` (intervals of x)
+    and the number of distinct responses per point.
+
+    x defaults to the swept axis (else the frequency axis); every other varying grid axis
+    not selected is fixed at its first value and listed in ``slice`` (``default: true``);
+    ``direction=`` or ``initial=`` keep only those branches. A study without a sweep or
+    several starts is 422. ``format=csv``: one row per branch and x value.
+    """
+    ds, path = load_dataset(settings, catalogue, study_id)
+    h = _hysteresis(study_id, ds, coords_of(request), x, variable, jump_db, tol_db, nearest)
+    if format == "csv":
+        return _csv_response(hysteresis_csv(h), f"{study_id}-hysteresis.csv")
+    out = hysteresis_json(h)
+    out["study_id"] = study_id
+    out["partial"] = path is None
+    return json_response(out)
+
+
 @router.get(
     "/plots/{kind}.{fmt}",
     responses={
@@ -359,7 +432,7 @@ def bandgap(
 def plot(
     request: Request,
     study_id: StudyId,
-    kind: Literal["transmittance", "bandgap", "effective-mass"],
+    kind: Literal["transmittance", "bandgap", "effective-mass", "hysteresis"],
     fmt: Literal["png", "svg"],
     settings: SettingsDep,
     catalogue: CatalogueDep,
@@ -370,18 +443,48 @@ def plot(
     nearest: bool = False,
     variable: MapVariable = "transmittance_db",
     reference: Annotated[Reference, Query(description=_REFERENCE_DOC)] = "none",
+    jump_db: Annotated[float, Query(gt=0, le=1000, description=_JUMP_DOC)] = 1.0,
+    tol_db: Annotated[float, Query(ge=0, le=1000, description=_TOL_DOC)] = 0.05,
 ) -> Response:
     """A figure, PNG or SVG: transmittance (Fig. 5a style, with the linear reference Γ_lin
-    dashed), bandgap map (of ``variable``, as in ``/bandgap``), or effective mass (Fig. 6).
+    dashed), bandgap map (of ``variable``, as in ``/bandgap``), effective mass (Fig. 6), or
+    hysteresis (as ``/hysteresis``: up and down curves in two colours with markers pointing
+    the way, jumps dashed, where they differ shaded; 422 without a sweep or several starts).
     Irregular, unsettled and failed points are marked and counted in the legend. Needs no
-    parameters: x defaults to the frequency axis, the hue (transmittance) or y (bandgap) to
-    the first other varying axis with few values, and every other varying axis is fixed at its
-    first value, named in the title and the ``X-Impactcell-Fixed`` header (JSON)."""
+    parameters: x defaults to the frequency axis (the swept axis for hysteresis), the hue
+    (transmittance) or y (bandgap) to the first other varying axis with few values, and every
+    other varying axis is fixed at its first value, named in the title and the
+    ``X-Impactcell-Fixed`` header (JSON)."""
     from service.analysis import plots
 
     variable = map_variable(variable, reference)
     ds, _path = load_dataset(settings, catalogue, study_id)
     sel = coords_of(request)
+    if kind == "hysteresis":
+        h = _hysteresis(study_id, ds, sel, x, variable, jump_db, tol_db, nearest)
+        image = plots.hysteresis_png(h, fmt=fmt)
+        v = View(str(h.attrs["x"]), None, {}, fixed_of(h))
+    else:
+        image, v = _figure(plots, kind, ds, sel, x, y, hue, threshold_db, nearest, variable, fmt)
+    fixed = json_text({"x": v.x, "y": v.y, "fixed": {k: jsonable(f) for k, f in v.fixed.items()}})
+    return Response(image, media_type=plots.FORMATS[fmt], headers={"X-Impactcell-Fixed": fixed})
+
+
+def _figure(
+    plots: Any,
+    kind: str,
+    ds: xr.Dataset,
+    sel: dict[str, str],
+    x: str | None,
+    y: str | None,
+    hue: str | None,
+    threshold_db: float | None,
+    nearest: bool,
+    variable: str,
+    fmt: Literal["png", "svg"],
+) -> tuple[bytes, View]:
+    """A transmittance, bandgap or effective-mass figure and the view it shows (422 for an
+    AnalysisError)."""
     try:
         if kind == "transmittance":
             v = default_view(ds, "transmittance_db", x, hue, sel)
@@ -398,8 +501,7 @@ def plot(
             image = plots.bandgap_png(m, fixed=v.fixed, fmt=fmt)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    fixed = json_text({"x": v.x, "y": v.y, "fixed": {k: jsonable(f) for k, f in v.fixed.items()}})
-    return Response(image, media_type=plots.FORMATS[fmt], headers={"X-Impactcell-Fixed": fixed})
+    return image, v
 
 
 __all__ = ["MAX_SLICE_VALUES", "coords_of", "json_response", "load_dataset", "router", "study_of"]

@@ -48,6 +48,10 @@ def study_out(rec: dict[str, Any], positions: dict[str, int] | None = None) -> d
             "plots": f"{base}/plots/transmittance.png",
         },
     }
+    d = rec.get("definition") or {}
+    if d.get("sweep") or d.get("initial"):  # only where there is a hysteresis to show
+        out["links"]["hysteresis"] = f"{base}/hysteresis"
+        out["links"]["hysteresis_plot"] = f"{base}/plots/hysteresis.png"
     return out
 
 

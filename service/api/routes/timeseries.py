@@ -27,6 +27,7 @@ from service.api.routes.results import coords_of, json_response, study_of
 from service.api.schemas import ErrorOut
 from service.studies.dataset import FILL_FLOAT, jsonable
 from service.studies.schema import Study
+from service.studies.specs import initial_states
 from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS, PointLimits, point_history
 
 __all__ = ["router"]
@@ -47,19 +48,19 @@ class _Answers:
     """Finished answers by (study, point, periods, format): an LRU bounded in bytes."""
 
     def __init__(self, limit: int) -> None:
-        self._items: OrderedDict[tuple[str, int, int, str], Response] = OrderedDict()
+        self._items: OrderedDict[tuple[str, int, int, str, str], Response] = OrderedDict()
         self._size = 0
         self._limit = limit
         self._lock = threading.Lock()
 
-    def get(self, key: tuple[str, int, int, str]) -> Response | None:
+    def get(self, key: tuple[str, int, int, str, str]) -> Response | None:
         with self._lock:
             hit = self._items.get(key)
             if hit is not None:
                 self._items.move_to_end(key)
             return hit
 
-    def put(self, key: tuple[str, int, int, str], resp: Response) -> None:
+    def put(self, key: tuple[str, int, int, str, str], resp: Response) -> None:
         with self._lock:
             if key in self._items:
                 return
@@ -89,21 +90,39 @@ def timeseries(
     periods: Annotated[int, Query(ge=1, le=_MAX_HISTORY_PERIODS)] = 5,
     format: Literal["json", "netcdf"] = "json",  # noqa: A002 - the query parameter's name
     nearest: bool = False,
+    initial: Annotated[
+        str | None,
+        Query(max_length=64, description="the initial state's label (studies with several)"),
+    ] = None,
 ) -> Response:
     """Recompute one point with time histories on (never stored); select it by coordinates.
 
     Runs on the cluster within the service's time limit for it; a point over the limit is a
-    422 saying so. Repeated requests are answered from a cache."""
+    422 saying so. Repeated requests are answered from a cache. The point starts from its
+    initial state (``initial``: one of the study's labels, default the first), never from a
+    sweep predecessor: in a sweep study the response found may be another branch's."""
     _, study = study_of(catalogue, study_id)
+    sel = coords_of(request)
+    sel.pop("direction", None)  # a sweep direction is not a property of one recomputed point
+    sel.pop("initial", None)  # the query parameter above, not a grid coordinate
+    labels = study.initial_labels()
+    label = labels[0] if initial is None else initial
+    if label not in labels:
+        raise HTTPException(
+            422, f"initial must be one of the study's initial states {', '.join(labels)}; "
+            f"got {initial!r}"
+        )  # fmt: skip
     try:
-        index, coords = _point_index(study, coords_of(request), nearest)
+        index, coords = _point_index(study, sel, nearest)
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    key = (study_id, index, periods, format)
+    key = (study_id, index, periods, format, label)
     hit = _answers.get(key)
     if hit is not None:
         return hit
-    pt = study.points(index, index + 1)[0]
+    pt = study.points(index, index + 1, grid=True)[0]  # the grid's own order, not work order
+    if study.initial is not None:
+        pt["initial"] = initial_states(study.initial)[labels.index(label)]
     limit = settings.timeseries_time_limit_s
     args = (pt, study.solver.settings().__dict__.copy(), periods,
             asdict(PointLimits(wall_s=limit, steps=settings.point_step_limit)))  # fmt: skip
@@ -166,7 +185,9 @@ def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int,
 
 def _event_columns(events: np.ndarray) -> dict[str, np.ndarray]:
     """The event log as named columns (``column_<i>`` if its layout is not the known one)."""
-    ev = np.asarray(events, dtype=np.float64).reshape(len(events), -1)
+    ev = np.asarray(events, dtype=np.float64)
+    if ev.ndim != 2:  # an empty log (a linear point: no events) has no row length to infer
+        ev = ev.reshape(len(ev), -1) if ev.size else ev.reshape(0, len(EVENT_FIELDS))
     names = list(EVENT_FIELDS) if ev.shape[1] == len(EVENT_FIELDS) else None
     return {(names[i] if names else f"column_{i}"): ev[:, i] for i in range(ev.shape[1])}
 

@@ -254,3 +254,15 @@ def test_a_list_leaves_out_definitions_unless_asked(api: Any) -> None:
     d["description"] = "x" * 10_001  # descriptions have a limit too
     r = tc.post("/studies", json=d)
     assert r.status_code == 422 and "description" in r.json()["detail"]
+
+
+def test_sweep_studies_advertise_their_hysteresis(api: Any) -> None:
+    tc, _ = api
+    plain = tc.post("/studies", json=tiny_study()).json()
+    assert "hysteresis" not in plain["links"]
+    d = tiny_study(name="swept")
+    d["sweep"] = {"axis": "gamma_r", "directions": ["up", "down"]}
+    rec = tc.post("/studies", json=d).json()
+    assert rec["links"]["hysteresis"] == f"/studies/{rec['id']}/hysteresis"
+    assert rec["links"]["hysteresis_plot"].endswith("/plots/hysteresis.png")
+    assert rec["points_total"] == 2 * 16  # up and down over the 16-point grid

@@ -81,3 +81,22 @@ def test_health_answers_while_a_long_timeseries_runs(tmp_path: Path, dask_addres
         assert r.status_code == 422 and "time limit of 8 s per point" in r.json()["detail"]
     finally:
         srv.stop()
+
+
+def test_a_point_of_a_sweep_study_starts_from_the_initial_state_asked_for(tmp_path: Path) -> None:
+    # the hysteresis example's cell at gamma_r 1.8: from rest an impacting orbit, from the
+    # linear state the linear response (docs/solvers.md, "Initial states and sweep lines")
+    d = {"name": "two-starts", "model": {"coupling": "paper", "modes": 5, "xi": 0.05},
+         "initial": ["rest", "linear"], "sweep": {"axis": "gamma_r", "directions": ["down"]},
+         "grid": {"gamma_r": [1.75, 1.8], "gap": 0.3, "theta": 0.3, "sigma": 0.05,
+                  "gamma_s": 1.0}}  # fmt: skip
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
+        sid = tc.post("/studies", json=d).json()["id"]
+        q = {"gamma_r": 1.8, "periods": 1, "direction": "down"}
+        rest = tc.get(f"/studies/{sid}/timeseries", params=q).json()["result"]
+        lin = tc.get(f"/studies/{sid}/timeseries", params={**q, "initial": "linear"}).json()
+        assert rest["outcome"] == "periodic" and lin["result"]["outcome"] == "linear"
+        assert lin["result"]["periods"] == 0  # proven linear from its start
+        assert lin["result"]["transmittance_db"] - rest["transmittance_db"] > 2.0
+        bad = tc.get(f"/studies/{sid}/timeseries", params={**q, "initial": "random-3"})
+        assert bad.status_code == 422 and "rest, linear" in bad.json()["detail"]

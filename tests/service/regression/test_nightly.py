@@ -717,3 +717,24 @@ def test_shipped_suite_passes_against_shipped_baselines(tmp_path: Path) -> None:
     assert report.ok, report.to_markdown()
     assert report.suite == str(ROOT / "studies" / "nightly")
     assert report.baselines == str(ROOT / "studies" / "baselines")
+
+
+def test_a_moved_point_of_a_sweep_baseline_is_named_by_its_direction_and_start() -> None:
+    """The shipped sweep baseline: labels (direction, initial) compare as labels, and a moved
+    point is reported with them."""
+    from service.studies.shipped import baselines_dir
+
+    base = open_results(baselines_dir() / "sweep.nc")
+    assert compare(base, base, study="sweep").status == "passed"
+    moved = base.copy(deep=True)
+    periodic = (moved["response_period"] > 0) & ~moved["failed"].astype(bool)
+    where = np.argwhere(periodic.transpose("initial", "direction", "gamma_r").values)[0]
+    i, d, g = (int(k) for k in where)
+    moved["transmittance_db"][i, d, g] += 0.01
+    cmp = compare(moved, base, study="sweep")
+    assert cmp.status == "failed" and len(cmp.changes) == 1
+    c = cmp.changes[0]
+    assert c.variable == "transmittance_db"
+    assert c.coords["direction"] == str(base["direction"].values[d])
+    assert c.coords["initial"] == str(base["initial"].values[i])
+    assert c.coords["gamma_r"] == pytest.approx(float(base["gamma_r"].values[g]))

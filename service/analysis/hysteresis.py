@@ -1,0 +1,486 @@
+"""Hysteresis maps of sweep and multi-start studies: branches, jumps and where they differ.
+
+A sweep study carries the state from one point to the next along its swept axis, up and/or
+down (dimension ``direction``); a multi-start study computes every point from several initial
+states (dimension ``initial``). Each combination of their values is one **branch** (labelled
+as continuation tools do: ``up``, ``down``, ``rest``, ``random-0/down``, ...). Along x
+(default: the swept axis, attribute ``sweep_axis``, else the frequency axis) a hysteresis map
+holds
+
+* every branch's curve of ``variable`` (sorted by x; a ``down`` branch was computed in
+  decreasing x),
+* its **jumps**: consecutive known points of a branch, in the order it was computed, whose
+  values differ by more than ``jump_db`` (labelled ``J1``, ``J2``, ... branch by branch),
+* where the branches **differ**: grid points at which the largest and smallest known value
+  over the branches are more than ``tol_db`` apart (for a sweep: |up − down| > ``tol_db``),
+  as intervals of x from the first to the last grid point of each run,
+* ``responses`` (the number of distinct responses per grid point) when the results have it.
+
+Every other varying grid axis is fixed at its first value unless selected
+(:func:`service.analysis.selection.default_view`, listed in the attribute ``fixed``). Branches
+from different starts are never mixed: each is its own curve.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from service.analysis.selection import (
+    BRANCH_DIMS,
+    AnalysisError,
+    Selection,
+    default_view,
+    parse_number,
+    slice_axes,
+    sweep_x,
+)
+from service.studies.dataset import jsonable
+from service.studies.variables import default_x, outcome_names
+
+__all__ = [
+    "NO_HYSTERESIS",
+    "fixed_of",
+    "hysteresis_csv",
+    "hysteresis_json",
+    "hysteresis_map",
+]
+
+NO_HYSTERESIS = "this study has no sweep or several starts: no hysteresis"
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs ``[i, j)`` of true values of a 1-d mask."""
+    edges = np.flatnonzero(np.diff(np.r_[0, np.asarray(mask, dtype=np.int8), 0]))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def _rows(
+    ds: xr.Dataset,
+    name: str,
+    branch_dims: list[str],
+    x: str,
+    sel: Selection,
+    nearest: bool,
+    like: xr.DataArray,
+) -> np.ndarray:
+    """``name`` over (branch, x), sorted like ``like``; broadcast over branch dims it lacks."""
+    own = [d for d in branch_dims if d in ds[name].dims]
+    da = slice_axes(ds, name, [*own, x], sel, nearest).sortby(x)
+    da = da.broadcast_like(like).transpose(*branch_dims, x)
+    return np.asarray(da.values).reshape(-1, like.sizes[x])
+
+
+def _jumps(
+    xv: np.ndarray, row: np.ndarray, decreasing: bool, jump: float
+) -> list[tuple[int, int, bool]]:
+    """Jumps of one branch: (from, to, across_missing) indices into the sorted ``xv``, in the
+    order the branch was computed; consecutive *known* points are compared."""
+    order = np.arange(xv.size)[::-1] if decreasing else np.arange(xv.size)
+    known = [int(i) for i in order if math.isfinite(row[i])]
+    out = []
+    for a, b in itertools.pairwise(known):
+        if abs(row[b] - row[a]) > jump:
+            out.append((a, b, abs(b - a) > 1))
+    return out
+
+
+def hysteresis_map(
+    ds: xr.Dataset,
+    x: str | None = None,
+    sel: Selection | None = None,
+    nearest: bool = False,
+    variable: str = "transmittance_db",
+    jump_db: float = 1.0,
+    tol_db: float = 0.05,
+) -> xr.Dataset:
+    """Branches of ``variable`` along ``x``, their jumps and where they differ.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        Results with a ``direction`` and/or ``initial`` dimension.
+    x : str, optional
+        The axis along x; default the swept axis (``ds.attrs["sweep_axis"]``), else the
+        frequency axis.
+    sel, nearest
+        Values of other dimensions (:func:`service.analysis.selection.select`); the varying
+        ones not given are fixed at their first value. Selecting ``direction`` or ``initial``
+        keeps only those branches.
+    variable : str
+        A numeric variable that spans the branch dimensions.
+    jump_db : float
+        A jump is a step between consecutive points of a branch over this (> 0).
+    tol_db : float
+        Branches differ at a point where their values spread over this (>= 0).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``variable`` (and ``outcome``, ``pending`` when present) over (branch, x), with
+        ``branch_direction`` and ``branch_initial`` ("" when not applicable); ``spread_db``,
+        ``differs`` and ``responses`` (when present) over x; ``jump_*`` over ``jump`` and
+        ``region_*`` over ``region``; ``branch_order`` (``increasing``/``decreasing``: the
+        order in which a branch's points are compared). Attributes ``variable``, ``x``,
+        ``jump_db``, ``tol_db``, ``branch_dims``, ``fixed`` (names, space separated),
+        ``sweep_axis`` ("" without a sweep), ``along_sweep`` (1 when x is the swept axis),
+        ``title``.
+
+    Raises
+    ------
+    AnalysisError
+        No ``direction``/``initial`` dimension, a bad axis, variable, threshold or selection.
+    """
+    present = [d for d in BRANCH_DIMS if d in ds.dims]
+    if not present:
+        raise AnalysisError(
+            f"{NO_HYSTERESIS} (the results have no direction or initial dimension; dimensions "
+            f"are {', '.join(str(d) for d in ds.dims) or '(none)'})"
+        )
+    if variable not in ds.data_vars:
+        raise AnalysisError(
+            f"variable={variable!r} is not in the results; variables are "
+            f"{', '.join(sorted(str(v) for v in ds.data_vars))}"
+        )
+    if ds[variable].dtype.kind not in "iuf":
+        raise AnalysisError(f"variable={variable!r} is not numeric: it has no curve")
+    lacking = [d for d in present if d not in ds[variable].dims]
+    if lacking:
+        raise AnalysisError(
+            f"variable={variable!r} does not vary with {', '.join(lacking)} (one value per "
+            "grid point): it has no branches; choose e.g. transmittance_db"
+        )
+    jump = parse_number("jump_db", jump_db)
+    tol = parse_number("tol_db", tol_db)
+    if jump <= 0:
+        raise AnalysisError(f"jump_db={jump_db!r} must be positive")
+    if tol < 0:
+        raise AnalysisError(f"tol_db={tol_db!r} must not be negative")
+    if x is not None and x in BRANCH_DIMS:
+        raise AnalysisError(f"x={x!r} labels branches; choose a grid axis as x")
+    x = x or sweep_x(ds, variable)
+    view = default_view(ds, variable, x, None, sel, auto_y=False, keep=present)
+    x = view.x
+    branch_dims = [d for d in present if d not in view.sel]
+    curves = slice_axes(ds, variable, [*branch_dims, x], view.sel, nearest).sortby(x)
+    curves = curves.transpose(*branch_dims, x)
+    xv = curves[x].values.astype(np.float64)
+    nx = xv.size
+    rows = np.asarray(curves.values, dtype=np.float64).reshape(-1, nx)
+
+    # Branch labels: initial/direction, selected ones included (from the scalar coordinates).
+    values = {
+        d: [str(v) for v in np.atleast_1d(curves[d].values)]
+        for d in present
+        if d in branch_dims or d in curves.coords
+    }
+    combos = list(itertools.product(*(values[d] for d in branch_dims))) or [()]
+    labels, directions, initials = [], [], []
+    for combo in combos:
+        got = dict(zip(branch_dims, combo, strict=True))
+        for d in present:
+            if d not in got:
+                got[d] = values.get(d, [str(view.sel[d])])[0]
+        labels.append("/".join(got[d] for d in present))
+        directions.append(got.get("direction", ""))
+        initials.append(got.get("initial", ""))
+
+    # Jumps, branch by branch, in the order each branch was computed: a down sweep went in
+    # decreasing values of the swept axis (the default x when the attribute is absent).
+    swept = str(ds.attrs.get("sweep_axis") or "") or default_x(ds[variable].dims) or ""
+    along = "direction" in present and x == swept
+    orders = ["decreasing" if along and d == "down" else "increasing" for d in directions]
+    j_branch, j_from, j_to, j_across = [], [], [], []
+    for b, row in enumerate(rows):
+        for a, c, across in _jumps(xv, row, orders[b] == "decreasing", jump):
+            j_branch.append(b)
+            j_from.append(a)
+            j_to.append(c)
+            j_across.append(across)
+    jb = np.array(j_branch, dtype=np.int64)
+    jf = np.array(j_from, dtype=np.int64)
+    jt = np.array(j_to, dtype=np.int64)
+
+    # Where branches differ: the spread of the known values at each grid point.
+    known = np.isfinite(rows)
+    enough = known.sum(axis=0) >= 2
+    spread = np.full(nx, np.nan)
+    if enough.any():
+        r = rows[:, enough]
+        spread[enough] = np.nanmax(r, axis=0) - np.nanmin(r, axis=0)
+    differs = np.where(np.isnan(spread), False, spread > tol)
+    runs = _runs(differs)
+
+    units = str(ds[variable].attrs.get("units", ""))
+    xattrs = dict(curves[x].attrs)
+    xunits = str(xattrs.get("units", ""))
+    data_vars: dict[str, Any] = {
+        variable: (("branch", x), rows, dict(curves.attrs)),
+        "spread_db": (
+            (x,),
+            spread,
+            {"units": units, "long_name": f"largest minus smallest {variable} over the branches"},
+        ),
+        "differs": (
+            (x,),
+            differs,
+            {"long_name": f"the branches differ by more than {tol:g} {units}".rstrip()},
+        ),
+        "jump_branch": (("jump",), jb, {"long_name": "index of the branch that jumps"}),
+        "jump_label": (("jump",), np.array([f"J{k + 1}" for k in range(jb.size)], dtype=object)),
+        "jump_from": (("jump",), xv[jf], {"units": xunits, "long_name": f"{x} before the jump"}),
+        "jump_to": (("jump",), xv[jt], {"units": xunits, "long_name": f"{x} after the jump"}),
+        "jump_from_value": (("jump",), rows[jb, jf], {"units": units}),
+        "jump_to_value": (("jump",), rows[jb, jt], {"units": units}),
+        "jump_size_db": (
+            ("jump",),
+            rows[jb, jt] - rows[jb, jf],
+            {"units": units, "long_name": "value after minus value before the jump"},
+        ),
+        "jump_across_missing": (
+            ("jump",),
+            np.array(j_across, dtype=bool),
+            {"long_name": "a missing point lies between the two points compared"},
+        ),
+        "region_start": (("region",), np.array([xv[i] for i, _ in runs]), {"units": xunits}),
+        "region_stop": (("region",), np.array([xv[j - 1] for _, j in runs]), {"units": xunits}),
+        "region_points": (("region",), np.array([j - i for i, j in runs], dtype=np.int64)),
+        "region_max_spread_db": (
+            ("region",),
+            np.array([float(np.max(spread[i:j])) for i, j in runs]),
+            {"units": units},
+        ),
+    }
+    if "outcome" in ds.data_vars:
+        codes = _rows(ds, "outcome", branch_dims, x, view.sel, nearest, curves)
+        data_vars["outcome"] = (("branch", x), codes, dict(ds["outcome"].attrs))
+    if "pending" in ds.data_vars:
+        pend = _rows(ds, "pending", branch_dims, x, view.sel, nearest, curves).astype(bool)
+        data_vars["pending"] = (("branch", x), pend, dict(ds["pending"].attrs))
+    if "responses" in ds.data_vars:
+        resp = slice_axes(ds, "responses", [x], view.sel, nearest).sortby(x)
+        data_vars["responses"] = ((x,), resp.values, dict(resp.attrs))
+    coords: dict[str, Any] = {
+        x: (x, xv, xattrs),
+        "branch": ("branch", np.array(labels, dtype=object)),
+        "branch_direction": ("branch", np.array(directions, dtype=object)),
+        "branch_initial": ("branch", np.array(initials, dtype=object)),
+        "branch_order": ("branch", np.array(orders, dtype=object)),
+        "jump": np.arange(jb.size),
+        "region": np.arange(len(runs)),
+    }
+    for name, c in curves.coords.items():
+        if c.ndim == 0:
+            coords[str(name)] = c
+    out = xr.Dataset(data_vars, coords=coords)
+    out.attrs = {
+        "variable": variable,
+        "x": x,
+        "jump_db": jump,
+        "tol_db": tol,
+        "branch_dims": " ".join(present),
+        "fixed": " ".join(view.fixed),
+        "sweep_axis": swept if "direction" in present else "",
+        "along_sweep": int(along),
+        "title": f"{variable} along {x}: branches {', '.join(labels)}",
+    }
+    return out
+
+
+def fixed_of(h: xr.Dataset) -> dict[str, Any]:
+    """The axes a :func:`hysteresis_map` fixed at their first value, with those values."""
+    return {k: np.asarray(h[k].values).item() for k in str(h.attrs.get("fixed", "")).split()}
+
+
+# --------------------------------------------------------------------------- JSON and CSV
+
+
+def _meaning(h: xr.Dataset, units: str) -> tuple[str, str]:
+    u = f" {units}" if units else ""
+    order = "in the order it was computed: decreasing x for a down sweep, increasing x otherwise"
+    if not h.attrs.get("along_sweep"):
+        order = "in increasing x"
+        if h.attrs.get("sweep_axis"):
+            order += " (x is not the swept axis: each point is on a sweep line of its own)"
+    jump = (
+        f"a jump is a step of more than {float(h.attrs['jump_db']):g}{u} between consecutive "
+        f"known points of a branch, {order}"
+    )
+    tol = (
+        f"the branches differ at a grid point where their largest and smallest known values "
+        f"are more than {float(h.attrs['tol_db']):g}{u} apart; an interval runs from the first "
+        "to the last grid point of a run of such points"
+    )
+    return jump, tol
+
+
+def _none(v: str) -> str | None:
+    return v or None
+
+
+def hysteresis_json(h: xr.Dataset) -> dict[str, Any]:
+    """A :func:`hysteresis_map` as JSON-ready data that describes itself.
+
+    Returns
+    -------
+    dict
+        ``variable`` (name, units, long name), ``x`` and ``axes.x`` (name, units, long name,
+        values), ``sweep_axis``, ``branch_dims``, ``slice`` (every fixed coordinate: value,
+        units, long name, ``default``), ``jump_db`` and ``tol_db`` (value, units, meaning),
+        ``branches`` (label, direction, initial, order, values along x, outcomes, jumps),
+        ``jumps`` (label, branch, direction, initial, from, to, interval, from_value,
+        to_value, size_db, across_missing), ``differing`` (start, stop, points,
+        max_spread_db), ``spread_db`` and ``differs`` along x, ``responses`` (None when the
+        results lack it) and ``counts``. Missing numbers are None.
+    """
+    variable = str(h.attrs["variable"])
+    x = str(h.attrs["x"])
+    da = h[variable]
+    units = str(da.attrs.get("units", ""))
+    fixed = set(str(h.attrs.get("fixed", "")).split())
+    xv = h[x].values
+    names = outcome_names(h["outcome"]) if "outcome" in h.data_vars else None
+    if names is not None and "pending" in h.data_vars:
+        names = names.astype(object)
+        names[np.asarray(h["pending"].values, dtype=bool)] = "pending"
+    labels = [str(v) for v in h["branch"].values]
+    jumps = []
+    for k in range(h.sizes["jump"]):
+        b = int(h["jump_branch"].values[k])
+        a, c = float(h["jump_from"].values[k]), float(h["jump_to"].values[k])
+        jumps.append(
+            {
+                "label": str(h["jump_label"].values[k]),
+                "branch": labels[b],
+                "direction": _none(str(h["branch_direction"].values[b])),
+                "initial": _none(str(h["branch_initial"].values[b])),
+                "from": a,
+                "to": c,
+                "interval": [min(a, c), max(a, c)],
+                "from_value": jsonable(h["jump_from_value"].values[k]),
+                "to_value": jsonable(h["jump_to_value"].values[k]),
+                "size_db": jsonable(h["jump_size_db"].values[k]),
+                "across_missing": bool(h["jump_across_missing"].values[k]),
+            }
+        )
+    branches = []
+    for b, label in enumerate(labels):
+        direction = str(h["branch_direction"].values[b])
+        row = da.values[b]
+        branches.append(
+            {
+                "label": label,
+                "direction": _none(direction),
+                "initial": _none(str(h["branch_initial"].values[b])),
+                "order": str(h["branch_order"].values[b]),
+                "values": jsonable(row),
+                "points": int(np.isfinite(row).sum()),
+                "outcomes": None if names is None else [str(n) for n in names[b]],
+                "jumps": [j["label"] for j in jumps if j["branch"] == label],
+            }
+        )
+    differing = [
+        {
+            "start": float(h["region_start"].values[k]),
+            "stop": float(h["region_stop"].values[k]),
+            "points": int(h["region_points"].values[k]),
+            "max_spread_db": jsonable(h["region_max_spread_db"].values[k]),
+        }
+        for k in range(h.sizes["region"])
+    ]
+    slice_ = {
+        str(k): {
+            "value": jsonable(c.values),
+            "units": str(c.attrs.get("units", "")),
+            "long_name": str(c.attrs.get("long_name", "")),
+            "default": str(k) in fixed,
+        }
+        for k, c in da.coords.items()
+        if c.ndim == 0
+    }
+    responses = jsonable(h["responses"].values) if "responses" in h.data_vars else None
+    jump_meaning, tol_meaning = _meaning(h, units)
+    resp = np.asarray(h["responses"].values, dtype=np.float64) if responses is not None else None
+    return {
+        "variable": {
+            "name": variable,
+            "units": units,
+            "long_name": str(da.attrs.get("long_name", "")),
+        },
+        "x": x,
+        "axes": {
+            "x": {
+                "name": x,
+                "units": str(h[x].attrs.get("units", "")),
+                "long_name": str(h[x].attrs.get("long_name", "")),
+                "values": jsonable(xv),
+            }
+        },
+        "sweep_axis": _none(str(h.attrs.get("sweep_axis", ""))),
+        "along_sweep": bool(h.attrs.get("along_sweep", 0)),
+        "branch_dims": str(h.attrs.get("branch_dims", "")).split(),
+        "slice": slice_,
+        "jump_db": {"value": float(h.attrs["jump_db"]), "units": units, "meaning": jump_meaning},
+        "tol_db": {"value": float(h.attrs["tol_db"]), "units": units, "meaning": tol_meaning},
+        "branches": branches,
+        "jumps": jumps,
+        "differing": differing,
+        "spread_db": jsonable(h["spread_db"].values),
+        "differs": jsonable(h["differs"].values),
+        "responses": responses,
+        "counts": {
+            "branches": len(branches),
+            "jumps": len(jumps),
+            "differing_points": int(np.asarray(h["differs"].values).sum()),
+            "coexisting_points": None if resp is None else int(np.sum(resp > 1)),
+        },
+    }
+
+
+def _cell(v: Any) -> str:
+    """A CSV field: empty for missing, ``repr`` precision for floats."""
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else repr(v)
+    return str(v)
+
+
+def hysteresis_csv(h: xr.Dataset) -> str:
+    """A :func:`hysteresis_map` as CSV text in long form: one row per branch and x value.
+
+    Columns: ``branch``, ``direction``, ``initial``, x's name, the variable, ``outcome``,
+    ``jump`` (the label of a jump that lands on this point, else empty), ``jump_size_db``,
+    ``spread_db``, ``differs``, ``responses``, then one column per fixed coordinate.
+    """
+    doc = hysteresis_json(h)
+    x, variable = doc["x"], doc["variable"]["name"]
+    fixed = list(doc["slice"])
+    landing: dict[tuple[str, float], Mapping[str, Any]] = {
+        (j["branch"], j["to"]): j for j in doc["jumps"]
+    }
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["branch", "direction", "initial", x, variable, "outcome", "jump",
+                "jump_size_db", "spread_db", "differs", "responses", *fixed])  # fmt: skip
+    tail = [_cell(doc["slice"][k]["value"]) for k in fixed]
+    xs = doc["axes"]["x"]["values"]
+    responses = doc["responses"] or [None] * len(xs)
+    for br in doc["branches"]:
+        for i, xv in enumerate(xs):
+            j = landing.get((br["label"], xv))
+            outcome = br["outcomes"][i] if br["outcomes"] is not None else None
+            w.writerow([br["label"], _cell(br["direction"]), _cell(br["initial"]), _cell(xv),
+                        _cell(br["values"][i]), _cell(outcome), j["label"] if j else "",
+                        _cell(j["size_db"]) if j else "", _cell(doc["spread_db"][i]),
+                        _cell(doc["differs"][i]), _cell(responses[i]), *tail])  # fmt: skip
+    return buf.getvalue()
