@@ -46,6 +46,7 @@ import xarray as xr
 from service.analysis.selection import (
     AnalysisError,
     Selection,
+    fixed_slice_json,
     parse_number,
     slice_axes,
 )
@@ -350,16 +351,7 @@ def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> 
         for k, c in gamma.coords.items()
         if c.ndim == 0 and k not in ("band",)
     }
-    slice_ = {
-        str(k): {
-            "value": jsonable(c.values),
-            "units": str(c.attrs.get("units", "")),
-            "long_name": str(c.attrs.get("long_name", "")),
-            "default": str(k) in fixed,
-        }
-        for k, c in gamma.coords.items()
-        if c.ndim == 0 and k not in ("band",)
-    }
+    slice_ = fixed_slice_json(gamma, fixed, skip=("band",))
     starts = np.atleast_2d(ds_map["band_start"].values)
     stops = np.atleast_2d(ds_map["band_stop"].values)
     s_edge = np.atleast_2d(ds_map["band_start_edge"].values)

@@ -38,6 +38,7 @@ from service.analysis.selection import (
     AnalysisError,
     Selection,
     default_view,
+    fixed_slice_json,
     parse_number,
     slice_axes,
     sweep_x,
@@ -395,16 +396,7 @@ def hysteresis_json(h: xr.Dataset) -> dict[str, Any]:
         }
         for k in range(h.sizes["region"])
     ]
-    slice_ = {
-        str(k): {
-            "value": jsonable(c.values),
-            "units": str(c.attrs.get("units", "")),
-            "long_name": str(c.attrs.get("long_name", "")),
-            "default": str(k) in fixed,
-        }
-        for k, c in da.coords.items()
-        if c.ndim == 0
-    }
+    slice_ = fixed_slice_json(da, fixed)
     responses = jsonable(h["responses"].values) if "responses" in h.data_vars else None
     jump_meaning, tol_meaning = _meaning(h, units)
     resp = np.asarray(h["responses"].values, dtype=np.float64) if responses is not None else None

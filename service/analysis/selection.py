@@ -37,6 +37,7 @@ __all__ = [
     "coordinate_index",
     "default_view",
     "default_y",
+    "fixed_slice_json",
     "parse_number",
     "select",
     "slice_axes",
@@ -359,6 +360,23 @@ def coordinate_index(name: str, values: np.ndarray, raw: Any, nearest: bool = Fa
     vals = np.asarray(values)
     value = parse_number(name, raw) if vals.dtype.kind in "iufb" else math.nan
     return _index(name, vals, raw, value, nearest)
+
+
+def fixed_slice_json(
+    da: xr.DataArray, fixed: Mapping[str, Any], skip: Sequence[str] = ()
+) -> dict[str, dict[str, Any]]:
+    """The scalar coordinates a map or curve was taken at, for its JSON ``slice``: value,
+    units, long name and whether the axis was fixed by default (in ``fixed``)."""
+    return {
+        str(k): {
+            "value": jsonable(c.values),
+            "units": str(c.attrs.get("units", "")),
+            "long_name": str(c.attrs.get("long_name", "")),
+            "default": str(k) in fixed,
+        }
+        for k, c in da.coords.items()
+        if c.ndim == 0 and k not in skip
+    }
 
 
 def slice_json(da: xr.DataArray) -> dict[str, Any]:

@@ -38,7 +38,7 @@ from service.studies.schema import Study, study_from_canonical
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
 
-_ERRORS: dict[int | str, dict[str, Any]] = {
+RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
     401: {"model": ErrorOut, "description": "missing or wrong bearer token"},
     404: {"model": ErrorOut, "description": "no such study"},
     422: {"model": ErrorOut, "description": "bad selection (names the field and the value)"},
@@ -46,7 +46,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 # Query parameters with a meaning of their own; every other one selects a coordinate value.
 _RESERVED = {"variable", "reference", "nearest", "x", "y", "threshold_db", "hue", "periods",
              "format", "jump_db", "tol_db"}  # fmt: skip
-_NETCDF = "application/x-netcdf"
+NETCDF = "application/x-netcdf"
 _CSV = "text/csv; charset=utf-8"
 #: The most values a JSON or CSV slice (or bandgap map) holds; beyond, 422 says how to select.
 MAX_SLICE_VALUES = 100_000
@@ -241,8 +241,8 @@ def _check_size(study_id: str, what: str, dims: dict[str, int], ds: xr.Dataset) 
 @router.get(
     "/dataset",
     responses={
-        **_ERRORS,
-        200: {"content": {_NETCDF: {}}, "description": "the NetCDF4 results file"},
+        **RESULT_ERRORS,
+        200: {"content": {NETCDF: {}}, "description": "the NetCDF4 results file"},
     },
     response_class=Response,
 )
@@ -263,13 +263,13 @@ def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -
         _tidy_partials(store)
     headers = {"X-Impactcell-Partial": "1" if partial else "0"}
     name = f"{study_id}{'-partial' if partial else ''}.nc"
-    return FileResponse(path, media_type=_NETCDF, filename=name, headers=headers)
+    return FileResponse(path, media_type=NETCDF, filename=name, headers=headers)
 
 
 @router.get(
     "/data",
     responses={
-        **_ERRORS,
+        **RESULT_ERRORS,
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "the slice"},
     },
 )
@@ -301,7 +301,7 @@ def data(
 @router.get(
     "/bandgap",
     responses={
-        **_ERRORS,
+        **RESULT_ERRORS,
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "map or edges"},
     },
 )
@@ -382,7 +382,7 @@ def _hysteresis(
 @router.get(
     "/hysteresis",
     responses={
-        **_ERRORS,
+        **RESULT_ERRORS,
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "the branches"},
     },
 )
@@ -421,7 +421,7 @@ def hysteresis(
 @router.get(
     "/plots/{kind}.{fmt}",
     responses={
-        **_ERRORS,
+        **RESULT_ERRORS,
         200: {
             "content": {"image/png": {}, "image/svg+xml": {}},
             "description": "a PNG or SVG figure",
@@ -504,4 +504,13 @@ def _figure(
     return image, v
 
 
-__all__ = ["MAX_SLICE_VALUES", "coords_of", "json_response", "load_dataset", "router", "study_of"]
+__all__ = [
+    "MAX_SLICE_VALUES",
+    "NETCDF",
+    "RESULT_ERRORS",
+    "coords_of",
+    "json_response",
+    "load_dataset",
+    "router",
+    "study_of",
+]

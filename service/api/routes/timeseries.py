@@ -23,8 +23,13 @@ from fastapi.responses import Response
 
 from service.analysis.selection import AnalysisError, coordinate_index, values_text
 from service.api.deps import CatalogueDep, JobsDep, SettingsDep, StudyId
-from service.api.routes.results import coords_of, json_response, study_of
-from service.api.schemas import ErrorOut
+from service.api.routes.results import (
+    NETCDF,
+    RESULT_ERRORS,
+    coords_of,
+    json_response,
+    study_of,
+)
 from service.studies.dataset import FILL_FLOAT, jsonable
 from service.studies.schema import Study
 from service.studies.specs import initial_states
@@ -34,12 +39,6 @@ __all__ = ["router"]
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
 
-_ERRORS: dict[int | str, dict[str, Any]] = {
-    401: {"model": ErrorOut, "description": "missing or wrong bearer token"},
-    404: {"model": ErrorOut, "description": "no such study"},
-    422: {"model": ErrorOut, "description": "bad selection (names the field and the value)"},
-}
-_NETCDF = "application/x-netcdf"
 _MAX_HISTORY_PERIODS = 50
 _CACHE_BYTES = 64 << 20  # answers kept (they are small: at most 50 periods of one point)
 
@@ -77,8 +76,8 @@ _answers = _Answers(_CACHE_BYTES)
 @router.get(
     "/timeseries",
     responses={
-        **_ERRORS,
-        200: {"content": {"application/json": {}, _NETCDF: {}}, "description": "histories"},
+        **RESULT_ERRORS,
+        200: {"content": {"application/json": {}, NETCDF: {}}, "description": "histories"},
     },
 )
 def timeseries(
@@ -227,4 +226,4 @@ def _history_netcdf(
     finally:
         os.unlink(tmp)
     disposition = f'attachment; filename="{study_id}-timeseries.nc"'
-    return Response(body, media_type=_NETCDF, headers={"content-disposition": disposition})
+    return Response(body, media_type=NETCDF, headers={"content-disposition": disposition})
