@@ -141,15 +141,7 @@ class JobManager:
     def cancel(self, study_id: str, wait: float = 10.0) -> dict[str, Any]:
         """Cancel a queued or running study: its running tasks stop within seconds; finished
         chunks are kept."""
-        ok = self.catalogue.set_status_if(study_id, ACTIVE, "cancelled", finished_at=utcnow())
-        rec = self.catalogue.get_study(study_id)
-        if rec is None:
-            raise KeyError(study_id)
-        if not ok:
-            raise StateError(
-                f"study {study_id} is {rec['status']}; only queued or running "
-                "studies can be cancelled"
-            )
+        rec = self._move(study_id, ACTIVE, "cancelled", "cancelled", finished_at=utcnow())
         self._request_drop(study_id, wait)
         return rec
 
@@ -169,18 +161,24 @@ class JobManager:
 
     def resume(self, study_id: str) -> dict[str, Any]:
         """Queue a cancelled or failed study again; it continues from its finished chunks."""
-        ok = self.catalogue.set_status_if(
-            study_id, RESUMABLE, "queued", error=None, finished_at=None
-        )
+        rec = self._move(study_id, RESUMABLE, "queued", "resumed", error=None, finished_at=None)
+        self._queue.put(study_id)
+        return rec
+
+    def _move(
+        self, study_id: str, allowed: tuple[str, ...], status: str, verb: str, **fields: Any
+    ) -> dict[str, Any]:
+        """Move a study to ``status`` if it is in ``allowed``: its record, or ``KeyError`` /
+        :class:`StateError` (naming the states that allow it)."""
+        ok = self.catalogue.set_status_if(study_id, allowed, status, **fields)
         rec = self.catalogue.get_study(study_id)
         if rec is None:
             raise KeyError(study_id)
         if not ok:
             raise StateError(
-                f"study {study_id} is {rec['status']}; only cancelled or failed "
-                "studies can be resumed"
+                f"study {study_id} is {rec['status']}; only {' or '.join(allowed)} studies "
+                f"can be {verb}"
             )
-        self._queue.put(study_id)
         return rec
 
     def _request_drop(self, study_id: str, wait: float) -> None:
