@@ -163,14 +163,22 @@ class Client:
         _raise_for(r)
         return r
 
-    def _download(self, path: str, params: Mapping[str, Any] | None = None) -> xr.Dataset:
-        """Stream a NetCDF answer to a temporary file (never whole in memory), load it."""
+    def _download(
+        self,
+        path: str,
+        params: Mapping[str, Any] | None = None,
+        headers: dict[str, str] | None = None,
+    ) -> xr.Dataset:
+        """Stream a NetCDF answer to a temporary file (never whole in memory), load it;
+        ``headers``, if given, receives the response's headers."""
         fd, name = tempfile.mkstemp(suffix=".nc", prefix="impactcell-client-")
         try:
             with os.fdopen(fd, "wb") as fh, self._http.stream("GET", path, params=params) as r:
                 if r.status_code >= 400:
                     r.read()
                     _raise_for(r)
+                if headers is not None:
+                    headers.update(r.headers)
                 for block in r.iter_bytes(1 << 20):
                     fh.write(block)
             with xr.open_dataset(name, engine="netcdf4") as ds:
@@ -458,6 +466,31 @@ class Client:
         params = {"periods": periods, "nearest": str(nearest).lower(), "format": "netcdf",
                   **_params(point)}  # fmt: skip
         return self._download(f"/studies/{study_id}/timeseries", params=params)
+
+    # ------------------------------------------------------------------ the point store
+
+    def points(self, *, page: int = 10_000, **query: Any) -> xr.Dataset:
+        """Computed points of every study (``GET /points``), all pages, as a Dataset along
+        ``point`` (parameters as coordinates, results as variables).
+
+        ``query``: a value per parameter (``theta=0.3``, ``gap=0.1``), or a range
+        (``gamma_r_min=1, gamma_r_max=2``), and ``modes``, ``coupling``, ``method``,
+        ``outcome``, ``version`` (``"all"``: every solver version), ``study``.
+        """
+        params = {**_params(query), "format": "netcdf", "limit": str(page)}
+        parts: list[xr.Dataset] = []
+        while True:
+            headers: dict[str, str] = {}
+            ds = self._download("/points", params, headers)
+            if ds.sizes.get("point", 0):
+                parts.append(ds)
+            nxt = headers.get("x-next-after")
+            if not nxt:
+                break
+            params["after"] = nxt
+        if not parts:
+            return ds
+        return parts[0] if len(parts) == 1 else xr.concat(parts, dim="point")
 
     def health(self) -> dict[str, Any]:
         """``GET /health``."""

@@ -65,11 +65,14 @@ __all__ = [
 ]
 
 #: Edge kinds, in the order of their integer codes in :func:`bandgap_map`'s dataset.
-EDGE_KINDS: tuple[str, ...] = ("crossing", "grid_end", "missing")
+EDGE_KINDS: tuple[str, ...] = ("crossing", "grid_end", "missing", "located", "uncertain")
 _EDGE_MEANINGS = (
     "interpolated linearly between the grid points on either side of the threshold",
     "the band reaches the end of the grid; the true edge lies beyond it",
     "the neighbouring grid point is missing (failed); the edge is the last known point",
+    "located by an adaptive study to its tolerance (the edge lies in its interval)",
+    "an adaptive study could only bound it: the confidence band of irregular points straddles "
+    "the threshold (or failed points hide the crossing); the edge lies in its interval",
 )
 
 
@@ -244,7 +247,12 @@ def bandgap_map(
     gamma = gamma.sortby(x) if y is None else gamma.sortby([y, x])
     xv = gamma[x].values.astype(np.float64)
     rows = gamma.values.reshape(-1, xv.size)
-    bands = [band_edges(xv, row, thr) for row in rows]
+    located = _located(ds, x, y, variable, thr, sel, nearest, rows)
+    if located is None:
+        bands = [band_edges(xv, row, thr) for row in rows]
+        intervals: list[list[tuple[float, float, float, float]]] | None = None
+    else:
+        bands, intervals = located
     nb = max((len(b) for b in bands), default=0)
     start = np.full((len(rows), nb), np.nan)
     stop = np.full((len(rows), nb), np.nan)
@@ -257,9 +265,14 @@ def bandgap_map(
             stop_edge[r, k] = EDGE_KINDS.index(b.stop_edge)
     counts = np.array([len(b) for b in bands], dtype=np.int64)
     ydims: tuple[str, ...] = () if y is None else (y,)
+    bounds = np.full((4, len(rows), nb), np.nan)  # start lo, start hi, stop lo, stop hi
+    for r, row_iv in enumerate(intervals or []):
+        for k, iv in enumerate(row_iv):
+            bounds[:, r, k] = iv
     if y is None:
         start, stop, start_edge, stop_edge = start[0], stop[0], start_edge[0], stop_edge[0]
         counts = counts.reshape(())
+        bounds = bounds[:, 0]
     xattrs = dict(gamma[x].attrs)
     edge_attrs = {
         "flag_values": np.arange(len(EDGE_KINDS), dtype=np.int8),
@@ -287,6 +300,15 @@ def bandgap_map(
         "band_stop_edge": ((*ydims, "band"), stop_edge, dict(edge_attrs)),
         "band_count": (ydims, counts, {"long_name": f"number of bands along {x}"}),
     }
+    if intervals is not None:  # an adaptive study's edges: the interval each is proven in
+        units = xattrs.get("units", "")
+        for i, (name, what) in enumerate((
+            ("band_start_lo", "lower end of the interval the band's lower edge lies in"),
+            ("band_start_hi", "upper end of the interval the band's lower edge lies in"),
+            ("band_stop_lo", "lower end of the interval the band's upper edge lies in"),
+            ("band_stop_hi", "upper end of the interval the band's upper edge lies in"),
+        )):  # fmt: skip
+            data_vars[name] = ((*ydims, "band"), bounds[i], {"units": units, "long_name": what})
     for extra in ("outcome", "pending"):  # to mark irregular, unsettled, failed, pending cells
         if extra in ds.data_vars:
             da = slice_axes(ds, extra, [y, x], sel, nearest)
@@ -300,6 +322,73 @@ def bandgap_map(
         "title": f"{variable} bands along {x}" + (f" for each {y}" if y else ""),
     }
     return out
+
+
+def _located(
+    ds: xr.Dataset,
+    x: str,
+    y: str | None,
+    variable: str,
+    thr: float,
+    sel: Selection | None,
+    nearest: bool,
+    rows: np.ndarray,
+) -> tuple[list[list[Band]], list[list[tuple[float, float, float, float]]]] | None:
+    """The bands of an adaptive study's map from the edges it located (``band_edges``), when
+    the map asks for what the study located (its axis, variable and threshold); else None.
+    Returns the bands per row and, per band, (start lo, start hi, stop lo, stop hi)."""
+    spec_text = ds.attrs.get("adaptive")
+    if "band_edges" not in ds.data_vars or not spec_text:
+        return None
+    import json
+
+    spec = json.loads(str(spec_text))
+    if (spec.get("target") != "band_edges" or spec.get("axis") != x
+            or spec.get("variable") != variable
+            or not math.isclose(float(spec.get("threshold_db", 0.0)), thr,
+                                rel_tol=0, abs_tol=1e-12)):  # fmt: skip
+        return None
+    get = {
+        k: slice_axes(ds, k, [y, "edge"], sel, nearest).sortby(y).values.reshape(len(rows), -1)
+        if y is not None
+        else slice_axes(ds, k, ["edge"], sel, nearest).values.reshape(1, -1)
+        for k in ("band_edges", "band_edge_lo", "band_edge_hi", "band_edge_rising",
+                  "band_edge_certain")
+    }  # fmt: skip
+    xs = ds[x].values.astype(np.float64)
+    lo_x, hi_x = float(np.nanmin(xs)), float(np.nanmax(xs))
+    all_bands: list[list[Band]] = []
+    all_iv: list[list[tuple[float, float, float, float]]] = []
+    for r, row in enumerate(rows):
+        n = int(np.sum(np.isfinite(get["band_edges"][r])))
+        edges = [
+            (float(get["band_edges"][r, k]), float(get["band_edge_lo"][r, k]),
+             float(get["band_edge_hi"][r, k]), bool(get["band_edge_rising"][r, k] == 1),
+             bool(get["band_edge_certain"][r, k] == 1))
+            for k in range(n)
+        ]  # fmt: skip
+        if edges:
+            below = edges[0][3]  # the first edge rises: the line starts below the threshold
+        else:
+            known = row[np.isfinite(row)]
+            below = bool(known.size and known[0] < thr)
+        bands: list[Band] = []
+        ivs: list[tuple[float, float, float, float]] = []
+        start = (lo_x, lo_x, lo_x, "grid_end") if below else None
+        for ex, elo, ehi, rising, certain in edges:
+            kind = "located" if certain else "uncertain"
+            if not rising and start is None:
+                start = (ex, elo, ehi, kind)
+            elif rising and start is not None:
+                bands.append(Band(start[0], ex, start[3], kind))
+                ivs.append((start[1], start[2], elo, ehi))
+                start = None
+        if start is not None:
+            bands.append(Band(start[0], hi_x, start[3], "grid_end"))
+            ivs.append((start[1], start[2], hi_x, hi_x))
+        all_bands.append(bands)
+        all_iv.append(ivs)
+    return all_bands, all_iv
 
 
 def _axis_json(ds_map: xr.Dataset, name: str) -> dict[str, Any]:
@@ -358,16 +447,27 @@ def bandgap_json(ds_map: xr.Dataset, fixed: Mapping[str, Any] | None = None) -> 
     e_edge = np.atleast_2d(ds_map["band_stop_edge"].values)
     counts = np.atleast_1d(ds_map["band_count"].values)
     yvals = ds_map[y].values if y is not None else [None]
+    bounds = (
+        [np.atleast_2d(ds_map[k].values)
+         for k in ("band_start_lo", "band_start_hi", "band_stop_lo", "band_stop_hi")]
+        if "band_start_lo" in ds_map
+        else None
+    )  # fmt: skip
     edges = []
     for r, yv in enumerate(yvals):
         n = int(counts[r])
-        edges.append(
-            {
-                "y": None if yv is None else jsonable(yv),
-                "bands": [[float(starts[r, k]), float(stops[r, k])] for k in range(n)],
-                "kinds": [[EDGE_KINDS[s_edge[r, k]], EDGE_KINDS[e_edge[r, k]]] for k in range(n)],
-            }
-        )
+        row: dict[str, Any] = {
+            "y": None if yv is None else jsonable(yv),
+            "bands": [[float(starts[r, k]), float(stops[r, k])] for k in range(n)],
+            "kinds": [[EDGE_KINDS[s_edge[r, k]], EDGE_KINDS[e_edge[r, k]]] for k in range(n)],
+        }
+        if bounds is not None:  # adaptive: where each edge is proven to lie
+            row["intervals"] = [
+                [[float(bounds[0][r, k]), float(bounds[1][r, k])],
+                 [float(bounds[2][r, k]), float(bounds[3][r, k])]]
+                for k in range(n)
+            ]  # fmt: skip
+        edges.append(row)
     thr = float(ds_map.attrs["threshold_db"])
     return {
         "variable": {

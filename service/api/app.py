@@ -18,16 +18,18 @@ from service.api.catalogue import Catalogue
 from service.api.deps import require_token
 from service.api.jobs import JobManager
 from service.api.nightly import NightlyRunner
-from service.api.routes import health, regressions, results, studies, timeseries
+from service.api.routes import health, points, regressions, results, studies, timeseries
 from service.api.settings import Settings
+from service.api.web import router as web_router
 from service.studies.provenance import package_version
 
 __all__ = ["OPEN_ROUTES", "create_app"]
 
 #: Paths served without the token even when one is set: liveness, and the API's description
 #: (Swagger UI loads the schema without credentials; the token is entered in its Authorize
-#: dialog). Everything else answers 401 without ``Authorization: Bearer <token>``.
-OPEN_ROUTES = ("/health", "/docs", "/openapi.json", "/docs/assets")
+#: dialog), and the web page's shell (``/``, ``/ui/*``: no data; it asks for the token).
+#: Everything else answers 401 without ``Authorization: Bearer <token>``.
+OPEN_ROUTES = ("/health", "/docs", "/openapi.json", "/docs/assets", "/", "/ui/{path}")
 _ASSETS = "/docs/assets"  # Swagger UI's JS and CSS, from the swagger-ui-bundle package
 
 log = logging.getLogger("impactcell.app")
@@ -136,10 +138,12 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
     app.state.settings = settings
     auth = [Depends(require_token)]
     app.include_router(health.router)
+    app.include_router(web_router)  # the page's files only; its data comes from the API
     app.include_router(studies.router, dependencies=auth)
     app.include_router(results.router, dependencies=auth)
     app.include_router(timeseries.router, dependencies=auth)
     app.include_router(regressions.router, dependencies=auth)
+    app.include_router(points.router, dependencies=auth)
     _add_docs(app)
     app.add_middleware(BodyLimit, limit=lambda: settings.max_body_bytes)
 

@@ -23,6 +23,7 @@ from sqlalchemy import (
     DateTime,
     Float,
     ForeignKey,
+    Index,
     Integer,
     String,
     Text,
@@ -93,6 +94,9 @@ class StudyRow(_Base):
     error: Mapped[str | None] = mapped_column(Text)
     failures: Mapped[str] = mapped_column(Text, default="[]")  # JSON: a sample of reasons
     seq: Mapped[int] = mapped_column(Integer, default=0)  # submission order (queue order)
+    # Of the points of its last run: computed by it, and taken from the point store (0002).
+    points_computed: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
+    points_reused: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
 
 
 class ResultFileRow(_Base):
@@ -127,6 +131,55 @@ class LeaseRow(_Base):
     expires_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
 
 
+class PointRow(_Base):
+    """One computed point (service.api.points): its key, parameters (indexed), result."""
+
+    __tablename__ = "points"
+    __table_args__ = (
+        # theta = …, gap = …, gamma_r in a range (the common cross-study question)
+        Index("ix_points_version_theta_g1_gamma_r", "version", "theta", "g1", "gamma_r"),
+    )
+
+    key: Mapped[str] = mapped_column(String(32), primary_key=True)
+    version: Mapped[str] = mapped_column(String(16))
+    method: Mapped[str] = mapped_column(String(16))
+    solver: Mapped[str] = mapped_column(ForeignKey("solvers.key"))
+    start: Mapped[str] = mapped_column(String(40))  # rest | an initial kind | after:<key>
+    coupling: Mapped[str] = mapped_column(String(16))
+    modes: Mapped[int] = mapped_column(Integer)
+    theta: Mapped[float] = mapped_column(Float)
+    sigma: Mapped[float] = mapped_column(Float, index=True)
+    gamma_s: Mapped[float] = mapped_column(Float)
+    gamma_r: Mapped[float] = mapped_column(Float, index=True)
+    xi: Mapped[float] = mapped_column(Float)
+    xi_b: Mapped[float | None] = mapped_column(Float)
+    g1: Mapped[float] = mapped_column(Float)
+    g2: Mapped[float] = mapped_column(Float)
+    outcome: Mapped[str] = mapped_column(String(16))
+    transmittance_db: Mapped[float | None] = mapped_column(Float)
+    record: Mapped[str] = mapped_column(Text)  # JSON: the worker's whole record
+    created_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+
+
+class SolverRow(_Base):
+    """Solver settings, once per distinct set (points refer to them by key)."""
+
+    __tablename__ = "solvers"
+
+    key: Mapped[str] = mapped_column(String(32), primary_key=True)
+    settings: Mapped[str] = mapped_column(Text)  # JSON
+
+
+class StudyPointRow(_Base):
+    """Which study uses which point, at which index of its work order."""
+
+    __tablename__ = "study_points"
+
+    study_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    idx: Mapped[int] = mapped_column(Integer, primary_key=True)
+    key: Mapped[str] = mapped_column(String(32), index=True)
+
+
 # The models' schema: what the migrations' head must create (and autogenerate compares with).
 metadata = _Base.metadata
 
@@ -154,6 +207,8 @@ def _study_dict(r: StudyRow) -> dict[str, Any]:
         "wall_s": r.wall_s,
         "error": r.error,
         "failures": json.loads(r.failures or "[]"),
+        "points_computed": r.points_computed,
+        "points_reused": r.points_reused,
     }
 
 
@@ -301,8 +356,10 @@ class Catalogue:
             return bool(res.rowcount)
 
     def delete_study(self, study_id: str) -> None:
-        """Remove a study's record and its files' records."""
+        """Remove a study's record, its files' records and its links to stored points (the
+        points stay for other studies; ``impactcell gc`` removes those no study uses)."""
         with self._tx() as s:
+            s.execute(delete(StudyPointRow).where(StudyPointRow.study_id == study_id))
             s.execute(delete(ResultFileRow).where(ResultFileRow.study_id == study_id))
             s.execute(delete(StudyRow).where(StudyRow.id == study_id))
 
@@ -493,5 +550,9 @@ def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
     # WAL lets readers (API requests) run while the runner thread writes progress.
     cur = dbapi_conn.cursor()
     cur.execute("PRAGMA journal_mode=WAL")
+    # In WAL mode NORMAL syncs at checkpoints, not at every commit: a killed process loses
+    # nothing committed (only a power cut may lose the last commits); the point store commits
+    # once per finished chunk, and a sync each time was most of its cost.
+    cur.execute("PRAGMA synchronous=NORMAL")
     cur.execute("PRAGMA foreign_keys=ON")
     cur.close()

@@ -25,15 +25,18 @@ import time
 import traceback
 import uuid
 from collections import deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from service.api.catalogue import ACTIVE, RESUMABLE, Catalogue, utcnow
+from service.api.points import SqlPointStore
 from service.api.settings import Settings
+from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore
 from service.studies.dataset import json_text
-from service.studies.runner import ChunkPool, StudyRun, make_client, warm_up
+from service.studies.runner import ChunkPool, StudyRun, make_client, make_run, warm_up
 from service.studies.schema import Study, study_from_canonical
 
 __all__ = ["JobManager", "StateError"]
@@ -59,7 +62,7 @@ class _Active:
     """A study this process is running."""
 
     study: Study
-    run: StudyRun
+    run: StudyRun | AdaptiveRun
     prior_wall_s: float  # running time of earlier runs (a resumed or taken-over study)
     started: float = field(default_factory=time.monotonic)
     failures: list[dict[str, Any]] = field(default_factory=list)
@@ -75,6 +78,7 @@ class JobManager:
     def __init__(self, settings: Settings, catalogue: Catalogue) -> None:
         self.settings = settings
         self.catalogue = catalogue
+        self.points = SqlPointStore(catalogue.engine)
         self.instance = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
         self._queue: queue.Queue[str | None] = queue.Queue()
         self._waiting: deque[str] = deque()  # runner thread only
@@ -269,15 +273,17 @@ class JobManager:
         assert rec is not None
         study = study_from_canonical(rec["definition"], source=f"study {sid}")
         failures: list[dict[str, Any]] = list(rec["failures"])
-        run = StudyRun(
+        run = make_run(
             study, self.settings.data_dir, workers=self._nworkers,
             progress=lambda done, total: self._progress(sid, done, total),
-            on_chunk=lambda start, stop, records: _keep_failures(
-                study, failures, start, stop, records),
+            points=self.points,
         )  # fmt: skip
+        run.on_chunk = lambda start, stop, records: _keep_failures(
+            run.coords_of, failures, start, stop, records
+        )
         act = _Active(study, run, float(rec["wall_s"] or 0.0), failures=failures)
         self._active[sid] = act
-        if act.run.reused or not act.run.pieces:
+        if act.run.cached or not act.run.pieces:
             self._finish(sid)
             return
         pool = self._ensure_pool(study.solver.method)
@@ -343,6 +349,7 @@ class JobManager:
                 sid, ("running",), "finished", finished_at=utcnow(), wall_s=act.wall_s(),
                 points_done=summary.points, points_failed=summary.failed,
                 points_irregular=summary.irregular, points_unsettled=summary.unsettled,
+                points_computed=summary.computed, points_reused=summary.reused,
                 failures=_json(act.failures),
             )  # fmt: skip
         except Exception as exc:  # noqa: BLE001 - recorded, the service carries on
@@ -403,14 +410,14 @@ class JobManager:
 
 
 def _keep_failures(
-    study: Study, failures: list[dict[str, Any]], start: int, stop: int,
-    records: list[dict[str, Any]],
+    coords_of: Callable[[int, int], Mapping[str, Any]], failures: list[dict[str, Any]],
+    start: int, stop: int, records: list[dict[str, Any]],
 ) -> None:  # fmt: skip
     """Keep a sample of failed points (coordinates and reason) for the study record."""
     bad = [i for i, r in enumerate(records) if r.get("failed")]
     room = _MAX_FAILURES_KEPT - len(failures)
     if bad and room > 0:
-        coords = study.coords_at(start, stop)
+        coords = coords_of(start, stop)
         for i in bad[:room]:
             failures.append({
                 "index": start + i,

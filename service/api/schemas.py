@@ -59,6 +59,14 @@ class StudyOut(BaseModel):
     points_unsettled: int = Field(
         description="points whose outcome is unsettled (the period budget ran out first)"
     )
+    points_computed: int = Field(
+        0, description="points its last run computed (0 until it finishes)"
+    )
+    points_reused: int = Field(
+        0,
+        description="points its last run did not compute: taken from the point store (known "
+        "from other studies) or from an interrupted run's chunks (0 until it finishes)",
+    )
     progress: float = Field(description="points_done / points_total, 0…1")
     submitted_at: str
     started_at: str | None

@@ -11,13 +11,13 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from service.cli import db, nightly, service, simulate, study
+from service.cli import db, nightly, points, service, simulate, study
 from service.cli.common import Parser, error_exit_status
 
 __all__ = ["build_parser", "main"]
 
 # In the order ``impactcell --help`` lists them.
-_GROUPS = (simulate, study, service, nightly, db)
+_GROUPS = (simulate, study, service, nightly, points, db)
 
 
 def build_parser() -> argparse.ArgumentParser:

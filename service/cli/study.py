@@ -14,6 +14,8 @@ __all__ = ["add_commands"]
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from service.api.catalogue import Catalogue
+    from service.api.points import SqlPointStore
     from service.studies.runner import run_study
     from service.studies.schema import load_study
     from service.studies.shipped import resolve_study_file
@@ -49,6 +51,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
             else:
                 bar.update(done - bar.n)
 
+    # The point store of the catalogue database (a SQLite file in the data dir by default):
+    # points it knows are not computed again.
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    catalogue = Catalogue(settings.catalogue_url())
     try:
         s = run_study(
             study,
@@ -58,18 +64,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
             chunk_size=args.chunk_size,
             serial=args.serial,
             progress=progress,
+            points=SqlPointStore(catalogue.engine),
         )
     finally:
+        catalogue.close()
         if bar is not None:
             bar.close()
     if args.json:
         print(json.dumps({**s.__dict__, "path": str(s.path)}))
         return 0
-    earlier = s.points - s.computed
-    resumed = "" if s.computed in (0, s.points) else f" ({earlier:,} from an earlier run)"
     print(f"study      {study.name} ({s.study_id})")
-    print(f"points     {s.points:,}{' (already complete)' if s.reused else ''}")
-    print(f"computed   {s.computed:,}{resumed}")
+    print(f"points     {s.points:,}{' (already complete)' if s.cached else ''}")
+    print(f"computed   {s.computed:,}")
+    print(f"reused     {s.reused:,} (the point store, or an earlier run's chunks)")
     print(f"failed     {s.failed:,}")
     print(f"irregular  {s.irregular:,}")
     print(f"unsettled  {s.unsettled:,}")

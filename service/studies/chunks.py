@@ -39,6 +39,7 @@ __all__ = [
     "DEFAULT_DATA_DIR",
     "STUDY_ID",
     "PartialState",
+    "record_columns",
     "StudyStore",
     "atomic_write",
     "data_root",
@@ -106,11 +107,11 @@ def iter_chunk_ranges(ranges: Iterable[tuple[int, int]], size: int) -> list[tupl
 # --------------------------------------------------------------------------- records -> arrays
 
 
-def _columns(
+def record_columns(
     records: Sequence[Mapping[str, Any]], fields: Sequence[str] = CHUNK_FIELDS
 ) -> dict[str, np.ndarray]:
-    """Per-field arrays of result records; ``None`` becomes NaN (floats) or -1 (ints), the
-    ``outcome`` string its flag value."""
+    """Per-field arrays of result records (chunk files, the point store's exports); ``None``
+    becomes NaN (floats) or -1 (ints), the ``outcome`` string its flag value."""
     n = len(records)
     cols: dict[str, np.ndarray] = {}
     for name in fields:
@@ -237,7 +238,7 @@ class StudyStore:
             raise ValueError(
                 f"chunk {start}-{stop} needs {stop - start} records, got {len(records)}"
             )
-        cols = _columns(records, self.fields)
+        cols = record_columns(records, self.fields)
         path = self.chunk_dir / f"{start}-{stop}.npz"
 
         def write(tmp: Path) -> None:
@@ -358,7 +359,7 @@ class StudyStore:
         rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
         n = self.study.size
         cols: dict[str, np.ndarray] = {}
-        for name, arr in _columns([rec], self.fields).items():
+        for name, arr in record_columns([rec], self.fields).items():
             dtype = object if arr.dtype.kind == "U" else arr.dtype
             cols[name] = np.empty((n, *arr.shape[1:]), dtype=dtype)
             cols[name][:] = arr[0]

@@ -226,7 +226,7 @@ def encoding(ds: xr.Dataset) -> dict[str, dict[str, Any]]:
     for name in ds.data_vars:
         var = VARIABLES.get(str(name)) or SWEEP_VARIABLES.get(str(name))
         dt = ds[name].dtype
-        kind = var.kind if var else {"O": "str", "b": "bool"}.get(dt.kind, "float")
+        kind = var.kind if var else {"O": "str", "b": "bool", "i": "int"}.get(dt.kind, "float")
         if kind == "str":
             enc[str(name)] = {}  # variable-length strings take no compression filter
         elif kind == "maskint":

@@ -36,13 +36,15 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import asdict, dataclass
 from typing import Any
 
+from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore, iter_chunk_ranges
 from service.studies.dataset import open_results, results_from_records, summarize
+from service.studies.points import PointStore, is_storable, solver_document, study_keys
 from service.studies.schema import Study
+from service.studies.summary import Cancelled, RunSummary
 from service.studies.variables import OUTCOMES, outcome_names
 from worker import simulate
 from worker.simulate import (
@@ -62,6 +64,7 @@ __all__ = [
     "StudyRun",
     "default_chunk_size",
     "make_client",
+    "make_run",
     "run_study",
     "warm_up",
 ]
@@ -76,31 +79,6 @@ _ONE_BLAS_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 
 Progress = Callable[[int, int], None]  # (points done, total points)
 ChunkDone = Callable[[int, int, list[dict[str, Any]]], None]  # (start, stop, records)
-
-
-class Cancelled(Exception):
-    """Raised inside the runner when its ``cancel`` callback says stop."""
-
-
-@dataclass
-class RunSummary:
-    """What a run did."""
-
-    study_id: str
-    path: Path
-    points: int
-    computed: int  # points computed by this run (the rest came from earlier, interrupted runs)
-    failed: int
-    irregular: int  # outcome irregular: converged statistics of a non-periodic response
-    unsettled: int  # outcome unsettled: the period budget ran out before the point ended
-    wall_s: float
-    kernel_s: float  # sum of per-point kernel times of the points computed now
-    workers: int
-    chunk_size: int
-    reused: bool = False  # the results file already existed
-    cancelled: bool = False  # stopped on request: finished chunks kept, no results file yet
-    # points by outcome (linear, periodic, irregular, unsettled, failed); empty when unknown
-    outcomes: dict[str, int] = field(default_factory=dict)
 
 
 def default_chunk_size(points: int, workers: int) -> int:
@@ -165,8 +143,9 @@ class StudyRun:
     """One study's side of a run: its store, the chunks still to compute and what came back.
 
     Made by :func:`run_study` and by the service's job manager; the chunks go to a
-    :class:`ChunkPool` (or run serially). ``reused`` is true when the results file already
-    exists and nothing is left to compute.
+    :class:`ChunkPool` (or run serially). ``cached`` is true when the results file already
+    exists and nothing is left to compute. Given a point store (``points``), points it knows
+    are taken from it, not computed (``service.studies.points``).
     """
 
     def __init__(
@@ -178,21 +157,32 @@ class StudyRun:
         workers: int = 1,
         progress: Progress | None = None,
         on_chunk: ChunkDone | None = None,
+        points: PointStore | None = None,
     ) -> None:
         self.t0 = time.perf_counter()
         self.study = study
         self.store = StudyStore(root, study)
+        self.points = points
+        # A tagged study is a fresh run of its definition (the nightly suite's): it computes
+        # every point itself (and stores what it computes).
+        self.reuse = points is not None and study.tag is None
+        self.solver = study.solver.settings().__dict__.copy()
+        self._solver_doc = solver_document(self.solver)
         self.total = study.size
         self.progress = progress
         self.on_chunk = on_chunk
         self.kernel_s = 0.0
         self.in_flight = 0
+        self.shared = 0  # points of its chunks another run's task computed (ChunkPool)
+        self.shared_pool = False  # another run was in its pool at the same time (ChunkPool)
         self.submitted = 0  # chunks handed to a pool (its fairness: fewer goes first)
-        self.reused = self.store.results_path.exists() and not self.store.has_retry_chunks()
+        self.cached = self.store.results_path.exists() and not self.store.has_retry_chunks()
         missing: list[tuple[int, int]] = []
-        if not self.reused:
+        if not self.cached:
             self.store.prepare()
             missing = self.store.missing_ranges()
+            if self.reuse:
+                missing = self._take_known(missing)
         self.n_missing = sum(b - a for a, b in missing)
         self.done = self.total - self.n_missing
         self._missing = missing
@@ -200,9 +190,54 @@ class StudyRun:
         self.chunk = 0
         self.pieces: deque[tuple[int, int]] = deque()
         self.plan(workers)
-        self.solver = study.solver.settings().__dict__.copy()
-        if progress and not self.reused:
+        if progress and not self.cached:
             progress(self.done, self.total)
+
+    def points_of(self, start: int, stop: int) -> list[dict[str, Any]]:
+        """The points ``start:stop`` in work order (what a task computes)."""
+        return self.study.points(start, stop)
+
+    def coords_of(self, start: int, stop: int) -> dict[str, Any]:
+        """Axis values of the points ``start:stop`` (failed points' coordinates)."""
+        return self.study.coords_at(start, stop)
+
+    def keys(self, start: int, stop: int) -> list[str]:
+        """Point keys of ``start:stop`` (work order; a sweep's: whole lines)."""
+        return study_keys(self.study, start, stop, solver=self._solver_doc)
+
+    def _take_known(self, missing: list[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Take the points the point store knows into the study's chunks (and link them to
+        the study); the ranges still to compute. A sweep takes only whole known lines (a
+        line's later points start from its earlier ones' states, which are not stored)."""
+        assert self.points is not None
+        block = self.study.line_length * max(1, 2048 // self.study.line_length) if self.lines \
+            else 2048  # fmt: skip
+        out: list[tuple[int, int]] = []
+        for a, b in missing:
+            for s in range(a, b, block):
+                e = min(s + block, b)
+                keys = self.keys(s, e)
+                known = self.points.lookup(keys)
+                have = [k in known for k in keys]
+                if self.lines:
+                    n = self.study.line_length
+                    for i in range(0, e - s, n):
+                        whole = all(have[i : i + n])
+                        have[i : i + n] = [whole] * n
+                i = 0
+                while i < e - s:
+                    j = i
+                    while j < e - s and have[j] == have[i]:
+                        j += 1
+                    if have[i]:
+                        self.store.write_chunk(s + i, s + j, [known[k] for k in keys[i:j]])
+                        self.points.link(self.study.id, list(enumerate(keys[i:j], start=s + i)))
+                    elif out and out[-1][1] == s + i:
+                        out[-1] = (out[-1][0], s + j)
+                    else:
+                        out.append((s + i, s + j))
+                    i = j
+        return out
 
     @property
     def lines(self) -> bool:
@@ -232,8 +267,31 @@ class StudyRun:
         """Every chunk computed and stored (nothing queued, nothing in flight)."""
         return not self.pieces and self.in_flight == 0
 
-    def finished(self, start: int, stop: int, records: list[dict[str, Any]], retry: bool) -> None:
-        """Store a chunk's records (``retry``: failed tasks, for a later run to try again)."""
+    def finished(
+        self,
+        start: int,
+        stop: int,
+        records: list[dict[str, Any]],
+        retry: bool,
+        keys: list[str] | None = None,
+    ) -> None:
+        """Store a chunk's records (``retry``: failed tasks, for a later run to try again):
+        its points into the point store (those that are the point's own result) and linked to
+        the study, then its chunk file."""
+        if self.points is not None and not retry:
+            keys = keys or self.keys(start, stop)
+            pts = self.study.points(start, stop)
+            if self.lines:  # a sweep point starts from the one before it in its line
+                n = self.study.line_length
+                for i, p in enumerate(pts):
+                    if (start + i) % n:
+                        p["_after"] = keys[i - 1]
+            self.points.save(
+                [(k, p, r) for k, p, r in zip(keys, pts, records, strict=True)
+                 if is_storable(r)],
+                self._solver_doc,
+                link=(self.study.id, list(enumerate(keys, start=start))),
+            )  # fmt: skip
         self.store.write_chunk(start, stop, records, retry=retry)
         self.kernel_s += sum(r["wall_s"] for r in records)
         self.done += stop - start
@@ -257,27 +315,38 @@ class StudyRun:
 
     def collate(self, workers: int) -> RunSummary:
         """Collate the stored chunks into the results file (or reuse it) and summarise."""
-        if self.reused:
+        if self.cached:
             ds = open_results(self.store.results_path)
-            return _summary(self, ds, computed=0, workers=0, reused=True)
+            return _summary(self, ds, computed=0, workers=0, cached=True)
         cols = self.store.collect()
         ds = results_from_records(self.study, cols)
         self.store.write_results(ds)
         if not self.store.has_retry_chunks():  # keep task failures around for the next run
             self.store.remove_chunks()
         return _summary(
-            self, ds, computed=self.n_missing, workers=workers,
+            self, ds, computed=self.n_missing - self.shared, workers=workers,
             outcomes=outcome_names(cols["outcome"]),
         )  # fmt: skip
 
     def cancelled_summary(self, workers: int) -> RunSummary:
         """The summary of a run stopped on request: finished chunks kept, no results file."""
+        computed = self.done - (self.total - self.n_missing) - self.shared
         return RunSummary(
             study_id=self.study.id, path=self.store.results_path, points=self.total,
-            computed=self.done - (self.total - self.n_missing), failed=0, irregular=0,
+            computed=computed, reused=self.done - computed, failed=0, irregular=0,
             unsettled=0, wall_s=time.perf_counter() - self.t0, kernel_s=self.kernel_s,
             workers=workers, chunk_size=self.chunk, cancelled=True,
         )  # fmt: skip
+
+
+def make_run(
+    study: Study, root: str | os.PathLike[str] | None, **kwargs: Any
+) -> StudyRun | AdaptiveRun:
+    """The run of a study: an :class:`AdaptiveRun` for an adaptive study, else a
+    :class:`StudyRun` (same keyword arguments)."""
+    if study.is_adaptive:
+        return AdaptiveRun(study, root, **kwargs)
+    return StudyRun(study, root, **kwargs)
 
 
 class _CancelProbe:
@@ -325,6 +394,22 @@ def _chunk_task(
     return run(points, solver, limits, _CancelProbe(cancel_event))
 
 
+@dataclass(eq=False)
+class _Piece:
+    """One chunk of a run on its way: its records fill in from its own task, from tasks of
+    other runs that compute the same points, or from the point store."""
+
+    run: str  # the run's key in the pool
+    start: int
+    stop: int
+    keys: list[str] | None  # point keys (None: the run has no point store)
+    records: list[dict[str, Any] | None]
+    left: int  # records still missing
+    retry: bool = False  # some record is a task failure
+    shared: int = 0  # records not computed by its own task (the store's, another run's task)
+    dead: bool = False  # dropped (its run removed, or a point it waited for was not delivered)
+
+
 class ChunkPool:
     """A bounded window of chunk tasks on a dask cluster, filled round-robin over studies.
 
@@ -332,6 +417,12 @@ class ChunkPool:
     chunk per study in turn, so a small study is never stuck behind a large one), waits up to
     ``timeout`` for tasks to finish and hands their records to their runs; ``remove`` drops a
     study: its queued tasks are cancelled and its running tasks stop at their next poll.
+
+    Runs with a point store compute each point once: a point the store has gained since the
+    run started is taken from it, and a point another run's task is computing now is not
+    submitted again; that task's record is handed to both (a claim per point key). A sweep line
+    waits only when every point of it is being computed already (its points depend on each
+    other); otherwise it is computed whole.
     """
 
     def __init__(self, client: Any, window: int, limits: PointLimits | None = None) -> None:
@@ -340,7 +431,9 @@ class ChunkPool:
         self.limits = asdict(limits or PointLimits())
         self.runs: dict[str, StudyRun] = {}
         self._order: deque[str] = deque()  # round-robin order of the runs with chunks left
-        self._futures: dict[Any, tuple[str, int, int]] = {}  # future → (run key, start, stop)
+        self._futures: dict[Any, tuple[_Piece, list[int]]] = {}  # future → (piece, positions)
+        # point key → [(piece, position)]: the first computes it, the rest wait for its record
+        self._claims: dict[str, list[tuple[_Piece, int]]] = {}
         self._events: dict[str, str] = {}  # run key → name of its cancel event
         self._tag = uuid.uuid4().hex[:8]  # a resumed run must not reuse keys of a cancelled one
         self._count = itertools.count()
@@ -350,15 +443,24 @@ class ChunkPool:
         self.runs[key] = run
         self._events[key] = f"impactcell-cancel-{key}-{self._tag}-{next(self._count)}"
         self._order.append(key)
+        if len(self.runs) > 1:  # from now on each may find points the others stored
+            for r in self.runs.values():
+                r.shared_pool = True
 
     def remove(self, key: str) -> StudyRun | None:
-        """Drop a study: queued tasks cancelled, running ones told to stop; its run returned."""
+        """Drop a study: queued tasks cancelled, running ones told to stop; its run returned.
+        Another study's chunks that waited for points of its tasks are queued again."""
         run = self.runs.pop(key, None)
         if key in self._order:
             self._order.remove(key)
-        mine = [f for f, (k, _, _) in self._futures.items() if k == key]
+        mine = [f for f, (p, _) in self._futures.items() if p.run == key]
         for f in mine:
-            del self._futures[f]
+            piece, positions = self._futures.pop(f)
+            self._undelivered(piece, positions)
+        for claims in self._claims.values():
+            for p, _ in claims:
+                if p.run == key:
+                    p.dead = True
         name = self._events.pop(key, None)
         if mine:
             try:
@@ -377,6 +479,8 @@ class ChunkPool:
         """No task in flight."""
         return not self._futures
 
+    # ------------------------------------------------------------------ submission
+
     def _fill(self) -> None:
         while len(self._futures) < self.window and self._order:
             key = self._order.popleft()
@@ -384,9 +488,56 @@ class ChunkPool:
             if not run.pieces:
                 continue  # out of the rotation until removed or complete
             start, stop = run.pieces.popleft()
+            if run.pieces:
+                self._order.append(key)
+            self._launch(key, run, start, stop)
+
+    def _launch(self, key: str, run: StudyRun, start: int, stop: int) -> None:
+        n = stop - start
+        keys = run.keys(start, stop) if run.points is not None else None
+        piece = _Piece(key, start, stop, keys, [None] * n, n)
+        run.in_flight += 1
+        compute = list(range(n))
+        if keys is not None and run.reuse:
+            assert run.points is not None
+            # The store may have gained points since the run started: another study's in
+            # this pool (a look-up per chunk only then; alone, its start-up look-up saw all).
+            known = (
+                run.points.lookup([k for k in keys if k not in self._claims])
+                if run.shared_pool
+                else {}
+            )
+            if run.lines:
+                if all(k in known for k in keys):
+                    compute = []
+                    piece.shared = n
+                    for i, k in enumerate(keys):
+                        self._fill_record(piece, i, known[k])
+                elif all(k in self._claims for k in keys):
+                    compute = []  # the same line is on its way for another study
+                    piece.shared = n
+                    for i, k in enumerate(keys):
+                        self._claims[k].append((piece, i))
+                else:
+                    for i, k in enumerate(keys):
+                        self._claims.setdefault(k, [(piece, i)])
+            else:
+                compute = []
+                piece.shared = n
+                for i, k in enumerate(keys):
+                    if k in known:
+                        self._fill_record(piece, i, known[k])
+                    elif k in self._claims:
+                        self._claims[k].append((piece, i))
+                    else:
+                        piece.shared -= 1
+                        self._claims[k] = [(piece, i)]
+                        compute.append(i)
+        if compute:
+            pts = run.points_of(start, stop)
             fut = self.client.submit(
                 _chunk_task,
-                run.study.points(start, stop),
+                [pts[i] for i in compute],
                 run.solver,
                 self.limits,
                 self._events[key],
@@ -398,11 +549,74 @@ class ChunkPool:
                 # every other study's earlier chunks, so a new small study starts at once.
                 priority=-run.submitted,
             )
-            self._futures[fut] = (key, start, stop)
-            run.in_flight += 1
+            self._futures[fut] = (piece, compute)
             run.submitted += 1
-            if run.pieces:
-                self._order.append(key)
+        if piece.left == 0:
+            self._complete(piece)
+
+    # ------------------------------------------------------------------ delivery
+
+    def _fill_record(self, piece: _Piece, pos: int, record: dict[str, Any]) -> None:
+        if piece.dead or piece.records[pos] is not None:
+            return
+        piece.records[pos] = record
+        piece.left -= 1
+        if str(record.get("reason") or "").startswith("task failed after"):
+            piece.retry = True
+        if piece.left == 0:
+            self._complete(piece)
+
+    def _complete(self, piece: _Piece) -> None:
+        run = self.runs.get(piece.run)
+        if run is None or piece.dead:
+            return
+        piece.dead = True  # delivered: nothing more goes to it
+        run.in_flight -= 1
+        run.shared += piece.shared
+        records = [dict(r) for r in piece.records if r is not None]
+        run.finished(piece.start, piece.stop, records, piece.retry, piece.keys)
+        if run.pieces and piece.run not in self._order:  # an adaptive run asked for more
+            self._order.append(piece.run)
+
+    def _deliver(self, piece: _Piece, positions: list[int], records: list[dict[str, Any]]) -> None:
+        """Records of ``positions`` of ``piece`` (its task's), to it and to their waiters."""
+        for pos, rec in zip(positions, records, strict=False):
+            self._fill_record(piece, pos, rec)
+            if piece.keys is None:
+                continue
+            claims = self._claims.get(piece.keys[pos])
+            if claims and claims[0] == (piece, pos):
+                del self._claims[piece.keys[pos]]
+                for other, opos in claims[1:]:
+                    self._fill_record(other, opos, rec)
+        if len(records) < len(positions):
+            self._undelivered(piece, positions[len(records) :])
+
+    def _requeue(self, piece: _Piece) -> None:
+        """Queue a piece's range again (its run recomputes it, or finds it in the store)."""
+        if piece.dead:
+            return
+        piece.dead = True
+        run = self.runs.get(piece.run)
+        if run is None:
+            return
+        run.in_flight -= 1
+        run.pieces.appendleft((piece.start, piece.stop))
+        if piece.run not in self._order:
+            self._order.append(piece.run)
+
+    def _undelivered(self, piece: _Piece, positions: list[int]) -> None:
+        """A task stopped before these positions (cancelled, or its run removed): the piece,
+        and every piece that waited for one of them, is queued again."""
+        self._requeue(piece)
+        if piece.keys is None:
+            return
+        for pos in positions:
+            claims = self._claims.get(piece.keys[pos])
+            if claims and claims[0] == (piece, pos):
+                del self._claims[piece.keys[pos]]
+                for other, _ in claims[1:]:
+                    self._requeue(other)
 
     def step(self, timeout: float) -> list[str]:
         """Fill the window, wait up to ``timeout`` s, store what finished; keys of the runs
@@ -419,9 +633,8 @@ class ChunkPool:
         for fut in done:
             if fut not in self._futures:
                 continue
-            key, start, stop = self._futures.pop(fut)
-            run = self.runs[key]
-            run.in_flight -= 1
+            piece, positions = self._futures.pop(fut)
+            run = self.runs[piece.run]
             # Not ``fut.status``: a finished future whose worker died before we fetched the
             # result is "lost" until dask has computed it again, and ``result()`` waits for it.
             try:
@@ -431,12 +644,9 @@ class ChunkPool:
                 # as failed with the reason, and mark the chunk so a rerun tries them again.
                 reason = f"task failed after {TASK_RETRIES} retries: {type(exc).__name__}: {exc}"
                 rec = failed_result(SolverSettings(**run.solver), reason)
-                run.finished(start, stop, [dict(rec) for _ in range(stop - start)], True)
-            else:
-                if len(records) < stop - start:  # stopped by a cancel: recomputed on resume
-                    run.pieces.appendleft((start, stop))
-                else:
-                    run.finished(start, stop, records, False)
+                records = [dict(rec) for _ in positions]
+            # Fewer records than points: stopped by a cancel, recomputed on resume.
+            self._deliver(piece, positions, records)
             fut.release()
         self._fill()
         return [k for k, r in self.runs.items() if r.complete]
@@ -456,6 +666,7 @@ def run_study(
     cancel: Callable[[], bool] | None = None,
     on_chunk: ChunkDone | None = None,
     limits: PointLimits | None = None,
+    points: PointStore | None = None,
 ) -> RunSummary:
     """Run (or resume) a study and collate its results file.
 
@@ -487,6 +698,8 @@ def run_study(
         ``on_chunk(start, stop, records)`` after each chunk is stored.
     limits : PointLimits, optional
         Wall-time and step budget of every point (default ``PointLimits()``).
+    points : PointStore, optional
+        The point store: points it knows are not computed, computed ones are added to it.
 
     Returns
     -------
@@ -496,8 +709,10 @@ def run_study(
     limits = limits or PointLimits()
     own_client = own_cluster = None
     nworkers = 1
-    run = StudyRun(study, root, chunk_size=chunk_size, progress=progress, on_chunk=on_chunk)
-    if run.reused:
+    run = make_run(
+        study, root, chunk_size=chunk_size, progress=progress, on_chunk=on_chunk, points=points
+    )
+    if run.cached:
         return run.collate(0)
     try:
         if not serial and run.pieces:
@@ -538,7 +753,7 @@ def _summary(
     *,
     computed: int,
     workers: int,
-    reused: bool = False,
+    cached: bool = False,
     outcomes: Mapping[str, int] | Any = None,
 ) -> RunSummary:
     """The summary of a finished run; outcomes (names) from the records, else from the dataset
@@ -551,13 +766,14 @@ def _summary(
         path=run.store.results_path,
         points=counts["points"],
         computed=computed,
+        reused=counts["points"] - computed,
         failed=counts["failed"],
         irregular=found.get("irregular", 0),
         unsettled=found.get("unsettled", 0),
         wall_s=time.perf_counter() - run.t0,
         kernel_s=run.kernel_s,
         workers=workers,
-        chunk_size=0 if reused else run.chunk,
-        reused=reused,
+        chunk_size=0 if cached else run.chunk,
+        cached=cached,
         outcomes=found,
     )

@@ -41,6 +41,7 @@ from service.studies.files import read_study_file
 from service.studies.grid import AXIS_TAGS, Range, Real, StrictModel, axis_size, axis_values
 from service.studies.specs import (
     PER_FREQUENCY_FIELDS,
+    AdaptiveSpec,
     AmplitudeTable,
     Grid,
     InitialSpec,
@@ -129,6 +130,7 @@ class Study(StrictModel):
     grid: Grid
     # Absent by default, so existing ids are unchanged (docs: README "Study files").
     sweep: SweepSpec | None = None
+    adaptive: AdaptiveSpec | None = None
     initial: InitialSpec | None = None
     _axes: dict[str, np.ndarray] | None = PrivateAttr(None)
     _amplitudes: np.ndarray | None = PrivateAttr(None)
@@ -200,7 +202,13 @@ class Study(StrictModel):
 
     @property
     def size(self) -> int:
-        """Number of points to compute (initial states × directions × grid points)."""
+        """Number of points to compute (initial states × directions × grid points); for an
+        adaptive study the most it may compute (lines × ``max_points``)."""
+        if self.adaptive is not None:
+            n = self.sizes()
+            return math.prod(v for k, v in n.items() if k != self.adaptive.axis) * int(
+                self.adaptive.max_points
+            )
         return self.n_initial * self.n_directions * self.grid_size
 
     # ---------------------------------------------------------------- initial states, sweeps
@@ -354,27 +362,56 @@ class Study(StrictModel):
         """``CellParams`` keyword dicts of points ``start:stop`` in work order (with ``grid``:
         grid points in the grid's C order). When the study names initial states, each work
         point also carries its ``initial`` (``kind``, ``seed``, ``index``: the worker's)."""
-        m = self.model
-        common: dict[str, Any] = {"modes": m.modes, "coupling": m.coupling}
-        if m.xi_b is not None:
-            common["xi_b"] = m.xi_b
         out: list[dict[str, Any]] = []
         if self.is_physical:
+            common = self._common()
             out = [{**c.to_model(f), **common} for c, f in self.cells(start, stop, grid=grid)]
         else:
             cols = self.coords_at(start, stop, grid=grid)
             for i in range(stop - start):
-                row = {k: float(v[i]) for k, v in cols.items()}
-                if "gap" in row:
-                    g = row.pop("gap")
-                    row["g1"] = row["g2"] = g
-                row.setdefault("xi", m.xi)
-                out.append({**row, **common})
+                out.append(self.model_point({k: float(v[i]) for k, v in cols.items()}))
         if self.initial is not None and not grid:
             states = initial_states(self.initial)
             for p, k in zip(out, self.work_indices(start, stop)[0], strict=True):
                 p["initial"] = dict(states[int(k)])
         return out
+
+    def _common(self) -> dict[str, Any]:
+        m = self.model
+        common: dict[str, Any] = {"modes": m.modes, "coupling": m.coupling}
+        if m.xi_b is not None:
+            common["xi_b"] = m.xi_b
+        return common
+
+    def model_point(self, values: Mapping[str, float]) -> dict[str, Any]:
+        """The ``CellParams`` keyword dict of a non-dimensional point from its grid axes'
+        values (``gap`` sets both stops; ``xi`` from the model block unless an axis)."""
+        row = dict(values)
+        if "gap" in row:
+            g = row.pop("gap")
+            row["g1"] = row["g2"] = g
+        row.setdefault("xi", self.model.xi)
+        return {**row, **self._common()}
+
+    # ---------------------------------------------------------------- adaptive lines
+
+    @property
+    def is_adaptive(self) -> bool:
+        """Whether one axis is sampled adaptively (``adaptive:``)."""
+        return self.adaptive is not None
+
+    def line_axes(self) -> dict[str, np.ndarray]:
+        """An adaptive study's other axes (every axis but the sampled one), canonical order."""
+        assert self.adaptive is not None
+        return {k: v for k, v in self.axes().items() if k != self.adaptive.axis}
+
+    def lines(self) -> list[dict[str, float]]:
+        """An adaptive study's lines: each combination of the other axes' values, C order."""
+        axes = self.line_axes()
+        return [
+            dict(zip(axes, (float(x) for x in combo), strict=True))
+            for combo in itertools.product(*axes.values())
+        ]
 
     def iter_points(self, chunk: int = 4096) -> Iterator[dict[str, Any]]:
         """Every point in order (for serial reference runs and tests)."""
@@ -394,6 +431,8 @@ class Study(StrictModel):
         )
         if self.sweep is not None:
             out += _sweep_problems(self.sweep, self.grid)
+        if self.adaptive is not None:
+            out += _adaptive_problems(self)
         return out
 
     def _lead_sizes(self) -> dict[str, int]:
@@ -404,6 +443,46 @@ class Study(StrictModel):
         if self.sweep is not None and self.n_directions > 1:
             lead["direction"] = self.n_directions
         return lead
+
+
+def _adaptive_problems(study: Study) -> list[tuple[str, str]]:
+    """An adaptive study samples a range axis of a non-dimensional grid, point by point."""
+    spec = study.adaptive
+    assert spec is not None
+    given = study.grid.given()
+    out: list[tuple[str, str]] = []
+    if study.is_physical:
+        out.append(("adaptive", "adaptive sampling needs a non-dimensional grid (no physical "
+                    "block); sample gamma_r instead of frequency_hz"))  # fmt: skip
+        return out
+    if study.sweep is not None:
+        out.append(("adaptive", "a sweep's points start from each other in order along "
+                    "the swept axis, an adaptive study samples out of order: give one of "
+                    "them"))  # fmt: skip
+    if study.initial is not None:
+        out.append(("adaptive", "adaptive lines start from rest; drop initial (or run a grid "
+                    "study for several initial states)"))  # fmt: skip
+    axis = given.get(spec.axis)
+    if axis is None:
+        hint = f"grid.{spec.axis}: {{start: 0.2, stop: 6, num: 2}}"
+        return [*out, ("adaptive.axis", f"{spec.axis!r} is not an axis of the grid; give it "
+                       f"as a range, e.g. {hint}")]  # fmt: skip
+    if not isinstance(axis, Range) or axis.num is None or axis.scale != "linear":
+        return [*out, (f"grid.{spec.axis}", "the adaptive axis must be a range {start, stop, "
+                       "num} (the interval searched and its starting samples)")]  # fmt: skip
+    if axis.num < 2:
+        out.append((f"grid.{spec.axis}.num", f"the adaptive axis needs num >= 2 starting "
+                    f"samples, got {axis.num}"))  # fmt: skip
+    if spec.max_points < axis.num:
+        out.append(("adaptive.max_points", f"must be at least the starting samples "
+                    f"(grid.{spec.axis}.num = {axis.num}), got {spec.max_points}"))  # fmt: skip
+    span = float(axis.stop) - float(axis.start)
+    if span <= 0:
+        out.append((f"grid.{spec.axis}", f"the adaptive axis needs stop > start, got "
+                    f"start={axis.start}, stop={axis.stop}"))  # fmt: skip
+    elif spec.tol >= span:
+        out.append(("adaptive.tol", f"must be below the axis's span ({span:g}), got {spec.tol}"))
+    return out
 
 
 def _sweep_problems(sweep: SweepSpec, grid: Grid) -> list[tuple[str, str]]:

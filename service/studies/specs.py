@@ -46,6 +46,9 @@ from worker.physical import BASE_AMPLITUDE_M, FREQUENCY_HZ, PhysicalCell
 from worker.simulate import SolverSettings
 
 __all__ = [
+    "ADAPTIVE_TARGETS",
+    "ADAPTIVE_VARIABLES",
+    "AdaptiveSpec",
     "AXIS_BOUNDS",
     "DIRECTIONS",
     "INITIAL_KINDS",
@@ -538,6 +541,56 @@ class SweepSpec(StrictModel):
         if len(set(values)) != len(values):
             raise ValueError(f"directions must be distinct, got {values}")
         return values
+
+
+#: What an adaptive study may locate along its line (service.studies.adaptive).
+ADAPTIVE_TARGETS = ("band_edges", "features")
+#: The variables an adaptive study's targets may follow.
+ADAPTIVE_VARIABLES = ("transmittance_db", "transmittance_linear_db", "impact_effect_db")
+#: Points one adaptive line may take at most.
+MAX_ADAPTIVE_POINTS = 10_000
+
+
+class AdaptiveSpec(StrictModel):
+    """Sample one grid axis adaptively, line by line (docs/adaptive.md).
+
+    The axis is a range ``{start, stop, num}`` of the grid: the interval searched and ``num``
+    starting samples. ``band_edges`` locates every crossing of ``variable`` = ``threshold_db``
+    to ``tol`` (axis units), never missing a band at least ``min_width`` wide; ``features``
+    refines where ``variable`` jumps by more than ``jump_db`` or bends, to ``resolution``.
+    """
+
+    axis: str = Field(min_length=1, max_length=100, description="The grid axis sampled.")
+    target: Literal[ADAPTIVE_TARGETS] = Field(  # type: ignore[valid-type]
+        "band_edges", description="band_edges (crossings of the threshold) or features."
+    )
+    variable: Literal[ADAPTIVE_VARIABLES] = Field(  # type: ignore[valid-type]
+        "transmittance_db", description="The variable followed (default Γ)."
+    )
+    threshold_db: Real = Field(0.0, description="band_edges: the threshold (dB), default 0.")
+    tol: Real = Field(1e-3, gt=0, description="band_edges: each edge to within this (axis units).")
+    min_width: Real | None = Field(
+        None,
+        gt=0,
+        description="band_edges: a band at least this wide is never missed "
+        "(default (stop - start) / 64).",
+    )
+    resolution: Real | None = Field(
+        None, gt=0, description="features: interval width to refine to (default tol)."
+    )
+    jump_db: Real = Field(1.0, gt=0, description="features: a step this large is a feature.")
+    max_points: Integer = Field(
+        150,
+        description=f"Points per line at most (num…{MAX_ADAPTIVE_POINTS}).",
+        json_schema_extra={"minimum": 2, "maximum": MAX_ADAPTIVE_POINTS},
+    )
+
+    @field_validator("max_points")
+    @classmethod
+    def _budget(cls, n: int) -> int:
+        if not 2 <= n <= MAX_ADAPTIVE_POINTS:
+            raise ValueError(f"max_points must be an integer in 2…{MAX_ADAPTIVE_POINTS}, got {n}")
+        return n
 
 
 class RandomInitial(StrictModel):

@@ -198,6 +198,14 @@ def load_dataset(
     """The study's dataset, and its results file (``None`` when partial: from chunks only)."""
     rec, study = study_of(catalogue, study_id)
     store = StudyStore(settings.data_dir, study)
+    if study.is_adaptive:
+        # Its points are placed on the union of what its lines sampled, known at the end.
+        if rec["status"] == "finished" and store.results_path.is_file():
+            return _cache.get(store.results_path), store.results_path
+        raise HTTPException(
+            409, f"study {study_id} is adaptive and {rec['status']}: its dataset is assembled "
+            "when it finishes (its points so far: GET /points?study=" + study_id + ")",
+        )  # fmt: skip
     path = _results_file(rec, store)
     if path is not None:
         return _cache.get(path), path
@@ -254,6 +262,10 @@ def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -
     """
     rec, study = study_of(catalogue, study_id)
     store = StudyStore(settings.data_dir, study)
+    if study.is_adaptive:
+        _, path = load_dataset(settings, catalogue, study_id)  # 409 until it finishes
+        return FileResponse(path, media_type=NETCDF, filename=f"{study_id}.nc",
+                            headers={"X-Impactcell-Partial": "0"})  # fmt: skip
     path = _results_file(rec, store)
     partial = path is None
     if path is None:

@@ -147,8 +147,8 @@ def test_bandgap_json_describes_itself() -> None:
         "theta": {"value": 0.1, "units": "1", "long_name": "mass ratio", "default": True},
         "sigma": {"value": 0.05, "units": "1", "long_name": "stiffness", "default": False},
     }
-    assert out["edge_units"] == "1" and set(out["edge_kinds"]) == {"crossing", "grid_end",
-                                                                   "missing"}  # fmt: skip
+    assert out["edge_units"] == "1" and set(out["edge_kinds"]) == {
+        "crossing", "grid_end", "missing", "located", "uncertain"}  # fmt: skip
     json.dumps(out, allow_nan=False)
     one_d = bandgap_json(bandgap_map(_ds(), "gamma_r", sel={"theta": 0.1, "gap": 1.0}))
     assert one_d["axes"]["y"] is None and one_d["slice"]["gap"]["default"] is False

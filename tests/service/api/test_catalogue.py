@@ -37,6 +37,11 @@ def test_catalogue_from_before_the_unsettled_count_is_upgraded(catalogue_url: st
     engine = create_engine(catalogue_url)
     with engine.begin() as conn:  # the table as solver version 1 left it (before migrations)
         conn.execute(text("ALTER TABLE studies DROP COLUMN points_unsettled"))
+        # and without what later revisions added (0002: the point store)
+        conn.execute(text("ALTER TABLE studies DROP COLUMN points_computed"))
+        conn.execute(text("ALTER TABLE studies DROP COLUMN points_reused"))
+        for table in ("study_points", "points", "solvers"):
+            conn.execute(text(f"DROP TABLE {table}"))
         conn.execute(text("DROP TABLE alembic_version"))
     assert "points_unsettled" not in {c["name"] for c in inspect(engine).get_columns("studies")}
     engine.dispose()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from service.studies.chunks import _columns
+from service.studies.chunks import record_columns
 from service.studies.dataset import results_from_records
 from service.studies.files import StudyFileError, read_study_file
 from service.studies.schema import StudyError, load_study, parse_study, study_from_canonical
@@ -296,7 +296,7 @@ def test_the_new_fields_do_not_touch_existing_ids() -> None:
 
 def _dataset(study: Any, amplitudes: np.ndarray) -> Any:
     records = [{"outcome": "periodic", "amplitude": float(a), "failed": False} for a in amplitudes]
-    return results_from_records(study, _columns(records), created="2026-01-01T00:00:00+00:00")
+    return results_from_records(study, record_columns(records), created="2026-01-01T00:00:00+00:00")
 
 
 def test_amplitude_m_is_amplitude_times_b_at_each_point() -> None:
@@ -322,7 +322,7 @@ def test_amplitude_m_of_a_failed_point_is_missing() -> None:
     records = [{"outcome": "periodic", "amplitude": 1.0, "failed": False}] * 5 + [
         {"outcome": "failed", "amplitude": None, "failed": True, "reason": "x"}
     ]
-    ds = results_from_records(study, _columns(records))
+    ds = results_from_records(study, record_columns(records))
     values = ds["amplitude_m"].values.ravel()
     assert np.isnan(values[-1]) and np.all(np.isfinite(values[:-1]))
 
@@ -333,7 +333,7 @@ def test_amplitude_m_over_u_g_is_the_transmittance() -> None:
     d["grid"]["damping_ratio"] = 0.03
     study = parse_study(d)
     records = simulate_chunk(study.points(0, 3), study.solver.model_dump())
-    ds = results_from_records(study, _columns(records))
+    ds = results_from_records(study, record_columns(records))
     gamma = 20.0 * np.log10(ds["amplitude_m"] / ds["base_amplitude_m"])
     np.testing.assert_allclose(gamma, ds["transmittance_db"], rtol=0, atol=1e-9)
     assert np.all(np.isfinite(ds["transmittance_db"]))

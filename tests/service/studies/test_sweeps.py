@@ -438,14 +438,14 @@ def test_responses_counts_distinct_responses() -> None:
 def test_responses_uses_the_study_tolerance(tmp_path: Path) -> None:
     study = _study(initial=["rest", "linear"], outputs={"coexistence_tol_db": 0.5})
     cols = {}
-    from service.studies.chunks import _columns
+    from service.studies.chunks import record_columns
 
     recs = []
     for p in study.points(0, study.size):
         recs.append({"outcome": "periodic", "transmittance_db": -10.0 - 0.3 * p["initial"]["index"],
                      "response_period": 1, "failed": False, "wall_s": 0.0, "periods": 1,
                      "steps": 1})  # fmt: skip
-    cols = _columns(recs)
+    cols = record_columns(recs)
     ds = results_from_records(study, cols)
     assert ds.attrs["coexistence_tol_db"] == 0.5 and (ds["responses"] == 1).all()
     strict = study.model_copy(update={"outputs": study.outputs.model_copy(

@@ -1,0 +1,156 @@
+"""The web page in a real browser (headless Chromium) against a real ``impactcell serve``: the
+home page lists a study, the study page draws its charts, a bad study shows its problems beside
+the text, cancel and delete work, and with a token the page asks for it once."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service.client import Client
+from tests.service.helpers import SLOW_SOLVER, Server, tiny_study
+
+# a real server, a real cluster, a real browser; `page` comes first in every signature, so a
+# missing browser skips before a server or cluster is started
+pytestmark = pytest.mark.slow
+
+TOKEN = "web-token"
+# True once the element's text matches the pattern (a polled predicate in the page).
+_HAS_TEXT = """([s, p]) => {
+    const e = document.querySelector(s);
+    return e !== null && new RegExp(p).test(e.textContent);
+}"""
+
+
+@pytest.fixture
+def server(tmp_path: Path, dask_address: str) -> Iterator[Server]:
+    srv = Server(tmp_path / "data", dask_address)
+    yield srv
+    srv.stop()
+
+
+def _expect_text(page: Any, selector: str, pattern: str, timeout: float = 60_000) -> None:
+    page.wait_for_function(_HAS_TEXT, arg=[selector, pattern], timeout=timeout)
+
+
+def test_home_lists_the_study_and_its_page_draws_the_charts(page: Any, server: Server) -> None:
+    with Client(server.url) as c:
+        rec = c.submit(tiny_study(name="web-map", num=6, gaps=(0.1, 0.5)))
+        c.wait(rec["id"], progress=False, timeout=120, poll=0.2)
+    page.goto(f"{server.url}/")
+    link = page.get_by_role("link", name="web-map")
+    link.wait_for()
+    assert "finished" in page.locator(f'tr[data-id="{rec["id"]}"]').inner_text()
+    _expect_text(page, "#studies-summary", "1 study")
+    link.click()
+    page.wait_for_url(re.compile(f"#/studies/{rec['id']}$"))
+    _expect_text(page, "#study-live", "finished, 100 %")
+    chart = page.locator('#map-chart svg[data-chart="map"]')
+    chart.wait_for()
+    assert int(chart.get_attribute("data-points")) == 12  # 6 γ_r × 2 gaps, every one finite
+    assert page.locator("#curve-chart svg path[data-series]").count() == 4  # Γ and Γ_lin, 2 gaps
+    page.locator("#mass-chart svg").wait_for()
+    assert "grid:" in page.locator("#definition").inner_text()
+    # Hover shows the values; the keyboard moves the read-out.
+    chart.hover(position={"x": 300, "y": 40})
+    assert re.search(r"γ_r = .*Γ \(dB\) = ", page.locator("#tooltip").inner_text())
+    chart.focus()
+    page.keyboard.press("End")
+    assert "γ_r = 3" in page.locator("#map-chart .readout").inner_text()
+    # Another variable from the menu: the impact effect, threshold −1 dB.
+    page.select_option("#map-variable", "impact_effect_db")
+    page.wait_for_function(
+        "() => document.querySelector('#band-edges')?.textContent.includes('Γ − Γ_lin < -1 dB')"
+    )
+    # Every form control has a label a screen reader can read.
+    unlabelled = page.evaluate(
+        "() => [...document.querySelectorAll('select, input, textarea')]"
+        ".filter(e => !e.labels?.length && !e.getAttribute('aria-label')).map(e => e.id)"
+    )
+    assert unlabelled == []
+    with page.expect_download() as dl:
+        page.get_by_role("button", name="Band edges CSV").click()
+    assert dl.value.suggested_filename == f"{rec['id']}-bands.csv"
+
+
+def test_a_bad_study_shows_its_problems_beside_the_text(page: Any, server: Server) -> None:
+    page.goto(f"{server.url}/#/submit")
+    page.fill("#study-text", "name: bad\ngrid:\n  gamma_r: [1.0, 2.0]\n  gap: -1\n  theta: 0.3\n"
+              "  sigma: 0.05\n  gamma_s: 1.0\n")  # fmt: skip
+    page.get_by_role("button", name="Submit study").click()
+    item = page.locator("#problem-list li").first
+    item.wait_for()
+    assert re.match(r"grid\.gap \(line 4\): gap must be >= 0, got -1", item.inner_text())
+    assert page.get_attribute("#study-text", "aria-invalid") == "true"
+    # A good one opens its page.
+    page.get_by_role("button", name="Insert the example").click()
+    page.get_by_role("button", name="Submit study").click()
+    page.wait_for_url(re.compile(r"#/studies/[0-9a-f]+$"))
+    _expect_text(page, "h1", "my-first-study")
+
+
+def test_cancel_then_delete(page: Any, server: Server) -> None:
+    page.on("dialog", lambda d: d.accept())  # the "delete?" confirmation
+    with Client(server.url) as c:
+        d = tiny_study(name="web-slow", num=150, gaps=(0.1, 0.3, 0.5, 0.7), **SLOW_SOLVER)
+        rec = c.submit(d)
+        page.goto(f"{server.url}/#/studies/{rec['id']}")
+        _expect_text(page, "#study-live", "^(queued|running)")
+        page.get_by_role("button", name="Cancel").click()
+        _expect_text(page, "#study-live", "^cancelled", timeout=30_000)
+        assert c.get(rec["id"])["status"] == "cancelled"
+        assert page.get_by_role("button", name="Resume").is_enabled()
+        page.get_by_role("button", name="Delete…").click()
+        page.wait_for_url(re.compile(r"#/$"))
+        _expect_text(page, "#studies-summary", "No studies yet")
+        assert c.list().total == 0
+
+
+def test_with_a_token_the_page_asks_for_it_once(page: Any, tmp_path: Path,
+                                                dask_address: str) -> None:  # fmt: skip
+    srv = Server(tmp_path / "data", dask_address, token=TOKEN)
+    try:
+        with Client(srv.url, token=TOKEN) as c:
+            c.submit(tiny_study(name="web-token", num=4, gaps=(0.1,)))
+        page.goto(f"{srv.url}/")
+        dialog = page.locator("#token-dialog")
+        dialog.wait_for(state="visible")
+        page.fill("#token-input", "wrong")
+        page.keyboard.press("Enter")
+        _expect_text(page, "#token-why", "refused")
+        page.fill("#token-input", TOKEN)
+        page.get_by_role("button", name="Use token").click()
+        page.get_by_role("link", name="web-token").click()
+        page.locator('#map-chart svg[data-chart="map"]').wait_for()
+        assert not dialog.is_visible()  # kept for the tab: never asked again
+        assert page.evaluate("sessionStorage.getItem('impactcell.token')") == TOKEN
+    finally:
+        srv.stop()
+
+
+def test_regressions_list_the_moved_points(page: Any, server: Server) -> None:
+    moved = {
+        "kind": "value", "variable": "transmittance_db", "coords": {"gamma_r": 1.2, "gap": 0.1},
+        "old": -3.0, "new": -2.5, "delta": 0.5, "tolerance": "abs 0.1", "regression": True,
+        "note": "",
+    }  # fmt: skip
+    study = {"study": "tiny", "status": "failed", "ok": False, "points": 12, "regressions": 1,
+             "changes": [moved]}  # fmt: skip
+    report = {"ok": False, "summary": "1 of 1 studies failed",
+              "started": "2026-01-02T02:00:00+00:00", "studies": [study]}  # fmt: skip
+    with Client(server.url) as c:
+        c.record_regression(report, markdown="# Nightly regression: FAILED\n")
+    page.goto(f"{server.url}/#/regressions")
+    run = page.locator("details.run").first
+    run.wait_for()
+    assert "failed" in run.inner_text() and "1 of 1 studies failed" in run.inner_text()
+    run.locator("summary").click()
+    row = page.locator("table.moved tbody tr").first
+    row.wait_for()
+    cells = [c.strip() for c in row.locator("td").all_inner_texts()]
+    assert cells[:6] == ["tiny", "γ_r = 1.2, gap g̃ = 0.1", "transmittance_db", "value", "-3",
+                         "-2.5"]  # fmt: skip
