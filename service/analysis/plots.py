@@ -168,6 +168,10 @@ _VARIABLE_TEXT = {  # symbol (titles, legends) and axis label of each mappable v
 }
 
 
+#: Outcome name of the values an adaptive line did not take (never marked, never drawn).
+UNSAMPLED = "unsampled"
+
+
 def _outcomes(
     ds: xr.Dataset,
     axes: Sequence[str | None],
@@ -186,7 +190,16 @@ def _outcomes(
     if "pending" in ds.data_vars:
         pend = slice_axes(ds, "pending", axes, sel, nearest).sortby(x).transpose(*like.dims)
         names[np.asarray(pend.values, dtype=bool)] = "pending"
+    if "sampled" in ds.data_vars:  # an adaptive study: values its lines did not take
+        took = slice_axes(ds, "sampled", axes, sel, nearest).sortby(x).transpose(*like.dims)
+        names[~np.asarray(took.values, dtype=bool)] = UNSAMPLED
     return names.astype(str)
+
+
+def _taken(names: np.ndarray) -> np.ndarray:
+    """Points to draw a curve through: all but the values an adaptive line did not take (a
+    line through them would break at every other line's sample)."""
+    return np.asarray(names) != UNSAMPLED
 
 
 def _mark_outcomes(ax: Any, xv: np.ndarray, values: np.ndarray, names: np.ndarray) -> None:
@@ -273,19 +286,23 @@ def transmittance_figure(
         lin = slice_axes(ds, "transmittance_linear_db", axes, sel, nearest).sortby(x)
     fig, ax = _figure()
     xv = da[x].values
+    names = _outcomes(ds, axes, sel, nearest, da)
+    taken = np.atleast_2d(_taken(names))
     rows = [da] if hue is None else [da.isel({hue: k}) for k in range(da.sizes[hue])]
     cmap = matplotlib.colormaps["viridis"]
     for k, row in enumerate(rows):
         color = "C0" if hue is None else cmap(k / max(len(rows) - 1, 1) * 0.9)
         label = "Γ" if hue is None else f"{axis_symbol(hue)} = {_value(row[hue].values)}"
-        ax.plot(xv, row.values, marker=".", ms=3, lw=1.2, color=color, label=label)
+        on = taken[k]
+        ax.plot(xv[on], row.values[on], marker=".", ms=3, lw=1.2, color=color, label=label)
         if lin is not None:
             ref = lin if hue is None else lin.isel({hue: k})
-            ax.plot(xv, ref.values, ls="--", lw=0.8, color=color, gid="linear-reference")
+            ax.plot(xv[on], ref.values[on], ls="--", lw=0.8, color=color,
+                    gid="linear-reference")  # fmt: skip
     if lin is not None and np.isfinite(lin.values).any():
         ax.plot([], [], ls="--", lw=0.8, color="0.3", label="Γ_lin: the cell without stops")
     ax.axhline(0.0, color="k", lw=0.8, ls=":", label="0 dB")
-    _mark_outcomes(ax, xv, da.values.astype(np.float64), _outcomes(ds, axes, sel, nearest, da))
+    _mark_outcomes(ax, xv, da.values.astype(np.float64), names)
     ax.set_xlabel(_axis_label(x, da[x]))
     ax.set_ylabel("transmittance Γ (dB)")
     sub = _subtitle(da, skip=(x,) if hue is None else (x, hue))
@@ -352,6 +369,9 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
         names = outcome_names(map_ds["outcome"].transpose(*order)).astype(object)
         if "pending" in map_ds.data_vars:
             names[np.asarray(map_ds["pending"].transpose(*order).values, dtype=bool)] = "pending"
+        if "sampled" in map_ds.data_vars:
+            took = np.asarray(map_ds["sampled"].transpose(*order).values, dtype=bool)
+            names[~took] = UNSAMPLED
         names = names.astype(str)
     fig, ax = _figure()
     counts = np.atleast_1d(map_ds["band_count"].values)
@@ -369,6 +389,9 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
 
     if y is None:
         g = gamma.values.astype(np.float64)
+        if names is not None:
+            on = _taken(names)
+            xv, g, names = xv[on], g[on], names[on]
         ax.plot(xv, g, marker=".", ms=3, lw=1.2, color="C0", label=symbol)
         ax.axhline(thr, color="k", lw=0.8, ls="--", label=f"threshold {thr:g} dB")
         for k in range(int(counts[0])):
@@ -383,7 +406,19 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
         return fig
 
     yv = map_ds[y].values.astype(np.float64)
-    g = np.ma.masked_invalid(gamma.transpose(y, x).values.astype(np.float64))
+    values = gamma.transpose(y, x).values.astype(np.float64)
+    below = np.asarray(map_ds["attenuating"].transpose(y, x).values, dtype=bool)
+    if names is not None and (names == UNSAMPLED).any():
+        # An adaptive study: each cell shows the line's last sample at or before it (a step
+        # function of what was computed; the band edges drawn are the located ones).
+        values, below = values.copy(), below.copy()
+        for r in range(values.shape[0]):
+            took = np.flatnonzero(names[r] != UNSAMPLED)
+            if took.size:
+                src = took[np.clip(np.searchsorted(took, np.arange(values.shape[1]),
+                                                   side="right") - 1, 0, None)]  # fmt: skip
+                values[r], below[r] = values[r, src], below[r, src]
+    g = np.ma.masked_invalid(values)
     finite = g.compressed()
     centre = 0.0 if variable == "impact_effect_db" else thr
     lo = float(finite.min()) if finite.size else centre - 1.0
@@ -397,7 +432,6 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
     cbar.set_label(label)
     cbar.ax.axhline(thr, color="k", lw=1.0)
     handles: list[Any] = []
-    below = np.asarray(map_ds["attenuating"].transpose(y, x).values, dtype=bool)
     for r in range(yv.size):
         for i, j in _runs(below[r]):
             ax.add_patch(
@@ -422,6 +456,7 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
             )
         )
     open_kinds = (EDGE_KINDS.index("grid_end"), EDGE_KINDS.index("missing"))
+    uncertain = EDGE_KINDS.index("uncertain")
     for r, yy in enumerate(yv):
         for k in range(int(counts[r])):
             for val, kind, sym in (
@@ -429,11 +464,20 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
                 (stops[r, k], e_edge[r, k], ">"),
             ):
                 is_open = kind in open_kinds
+                c = "0.45" if kind == uncertain else "k"
                 ax.plot([val], [yy], marker=sym if is_open else "|", ms=7 if is_open else 11,
-                        mew=1.8, color="k", mfc="none" if is_open else "k", ls="none")  # fmt: skip
-    if counts.sum():
+                        mew=1.8, color=c, mfc="none" if is_open else c, ls="none")  # fmt: skip
+    kinds = {int(e[r, k]) for e in (s_edge, e_edge) for r in range(len(yv))
+             for k in range(int(counts[r]))}  # fmt: skip
+    if kinds & {EDGE_KINDS.index("crossing")}:
         handles.append(Line2D([], [], marker="|", ms=11, mew=1.8, color="k", ls="none",
                               label="band edge (interpolated)"))  # fmt: skip
+    if kinds & {EDGE_KINDS.index("located")}:
+        handles.append(Line2D([], [], marker="|", ms=11, mew=1.8, color="k", ls="none",
+                              label="band edge (located to tol)"))  # fmt: skip
+    if uncertain in kinds:
+        handles.append(Line2D([], [], marker="|", ms=11, mew=1.8, color="0.45", ls="none",
+                              label="band edge (uncertain: an interval)"))  # fmt: skip
     if any(
         (s_edge[r, k] in open_kinds) or (e_edge[r, k] in open_kinds)
         for r in range(len(yv))
@@ -453,7 +497,8 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
     pending = int(np.sum(names == "pending"))
     if pending:
         handles.append(Patch(facecolor="0.75", label=f"not computed yet ({pending})"))
-    missing = int(np.sum(np.ma.getmaskarray(g) & ~np.isin(names, ["failed", "pending"])))
+    missing = int(np.sum(np.ma.getmaskarray(g) & ~np.isin(names, ["failed", "pending",
+                                                                   UNSAMPLED])))  # fmt: skip
     if missing:
         handles.append(Patch(facecolor="0.75", label=f"missing ({missing})"))
     ax.set_xlim(xe[0], xe[-1])
@@ -515,8 +560,13 @@ def effective_mass_figure(
         if "theta_eff_slope" in ds.data_vars
         else None
     )
-    xv = harmonic[x].values.astype(np.float64)
-    h = harmonic.values.astype(np.float64)
+    names = _outcomes(ds, [x], sel, nearest, harmonic)
+    on = _taken(names)
+    xv = harmonic[x].values.astype(np.float64)[on]
+    h = harmonic.values.astype(np.float64)[on]
+    names = names[on]
+    if slope is not None:
+        slope = slope[on]
     fig, ax = _figure()
     for k, band in enumerate(band_edges(xv, h, 0.0)):
         ax.axvspan(band.start, band.stop, color="C3", alpha=0.15, lw=0,
@@ -526,7 +576,7 @@ def effective_mass_figure(
         ax.plot(xv, slope.values, marker="o", ms=3, lw=1.0, ls="--", mfc="none", color="C1",
                 label="θ_eff, phase-portrait slope")  # fmt: skip
     ax.axhline(0.0, color="k", lw=0.8)
-    _mark_outcomes(ax, xv, h, _outcomes(ds, [x], sel, nearest, harmonic))
+    _mark_outcomes(ax, xv, h, names)
     both = np.concatenate([h, slope.values if slope is not None else []])
     both = np.abs(both[np.isfinite(both)])
     if both.size and both.max() > 100 * max(np.median(both), 1.0):

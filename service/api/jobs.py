@@ -333,9 +333,11 @@ class JobManager:
         if act is None or (now - act.last_progress < _PROGRESS_EVERY_S and done < total):
             return
         act.last_progress = now
+        # An adaptive study's total is the most it may take, shrinking as its lines finish.
         self.catalogue.update_study(
-            sid, points_done=done, wall_s=act.wall_s(), failures=_json(act.failures)
-        )
+            sid, points_done=done, points_total=total, wall_s=act.wall_s(),
+            failures=_json(act.failures),
+        )  # fmt: skip
 
     def _finish(self, sid: str) -> None:
         act = self._active.pop(sid)
@@ -347,7 +349,8 @@ class JobManager:
             self.catalogue.add_result_file(sid, str(summary.path), size)
             self.catalogue.set_status_if(
                 sid, ("running",), "finished", finished_at=utcnow(), wall_s=act.wall_s(),
-                points_done=summary.points, points_failed=summary.failed,
+                points_total=summary.points, points_done=summary.points,
+                points_failed=summary.failed,
                 points_irregular=summary.irregular, points_unsettled=summary.unsettled,
                 points_computed=summary.computed, points_reused=summary.reused,
                 failures=_json(act.failures),

@@ -38,6 +38,7 @@ def _fill(app: Any, *defs: dict[str, Any]) -> list[str]:
         cat.close()
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_points_route_answers_json_csv_and_netcdf(make_app: Any) -> None:  # noqa: F811
     with make_app(api_token="tok") as app:
         _fill(app, tiny_study("a", num=6))

@@ -111,6 +111,7 @@ def _same(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_renamed_extended_and_rerun_studies_compute_only_new_points(
     store: Any, tmp_path: Path
 ) -> None:
@@ -147,6 +148,7 @@ def test_renamed_extended_and_rerun_studies_compute_only_new_points(
     _same(_values(s1.path), _values(s4.path))  # and finds the same numbers
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_a_sweep_reuses_whole_lines_only(store: Any, tmp_path: Path) -> None:
     st, _ = store
     defn = tiny_study("sweep", num=5, gaps=(0.1,))
@@ -170,6 +172,7 @@ def test_a_sweep_reuses_whole_lines_only(store: Any, tmp_path: Path) -> None:
         )
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_budget_failures_are_not_stored(store: Any, tmp_path: Path) -> None:
     st, _ = store
     defn = tiny_study("budget", num=3, gaps=(0.1,))
@@ -180,6 +183,7 @@ def test_budget_failures_are_not_stored(store: Any, tmp_path: Path) -> None:
     assert st.count() == 3
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_a_killed_run_keeps_its_finished_chunks_in_the_store(store: Any, tmp_path: Path) -> None:
     st, _ = store
     defn = tiny_study("killed", num=8)
@@ -209,6 +213,7 @@ def filled(store: Any, tmp_path: Path) -> Any:
     return st, cat, a, b
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_queries_by_value_and_range_page_through_everything(filled: Any) -> None:
     st, _, a, b = filled
     total = st.count()
@@ -243,6 +248,7 @@ def test_queries_by_value_and_range_page_through_everything(filled: Any) -> None
         st.query(PointQuery(limit=0))
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_exports_keep_parameters_and_results(filled: Any, tmp_path: Path) -> None:
     st, *_ = filled
     rows = list(st.iter_query(PointQuery(values={"theta": 1.0})))
@@ -266,6 +272,7 @@ def test_exports_keep_parameters_and_results(filled: Any, tmp_path: Path) -> Non
 # --------------------------------------------------------------------------- housekeeping
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_delete_keeps_shared_points_and_gc_removes_the_rest(filled: Any, tmp_path: Path) -> None:
     st, cat, a, b = filled
     for s in (a, b):
@@ -289,6 +296,7 @@ def test_delete_keeps_shared_points_and_gc_removes_the_rest(filled: Any, tmp_pat
     assert gone == {"points": c.computed, "links": c.points, "studies": 1}
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_a_solver_version_bump_hides_old_points_from_new_studies(
     store: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -307,6 +315,7 @@ def test_a_solver_version_bump_hides_old_points_from_new_studies(
     assert len(st.query(PointQuery(version="all"))[0]) == 6
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_solver_settings_are_stored_once(filled: Any) -> None:
     st, *_ = filled
     from sqlalchemy import func, select
