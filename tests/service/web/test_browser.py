@@ -154,3 +154,24 @@ def test_regressions_list_the_moved_points(page: Any, server: Server) -> None:
     cells = [c.strip() for c in row.locator("td").all_inner_texts()]
     assert cells[:6] == ["tiny", "γ_r = 1.2, gap g̃ = 0.1", "transmittance_db", "value", "-3",
                          "-2.5"]  # fmt: skip
+
+
+def test_an_adaptive_study_page_draws_its_samples_and_located_edges(
+    page: Any, server: Server
+) -> None:
+    from tests.service.studies.test_adaptive_studies import adaptive_study
+
+    with Client(server.url) as c:
+        rec = c.submit(adaptive_study("web-adaptive"))
+        rec = c.wait(rec["id"], progress=False, timeout=180, poll=0.2)
+    page.goto(f"{server.url}/#/studies/{rec['id']}")
+    chart = page.locator('#map-chart svg[data-chart="map"]')
+    chart.wait_for()
+    # the map shows the union of the lines' samples; no cell is marked failed for a value a
+    # line did not take, and the edges listed are the located ones
+    assert page.locator("#map-chart text", has_text="✖").count() == 0
+    _expect_text(page, "#band-edges", r"\d")
+    assert page.locator("#curve-chart svg path[data-series]").count() == 4
+    # each line's curve runs through its own samples: one unbroken path (a single move-to)
+    d = page.locator("#curve-chart svg path[data-series]").first.get_attribute("d")
+    assert d.count("M") == 1

@@ -564,13 +564,20 @@
     /** How each point of the slice ended, -1 where it is not computed yet (a partial
      * dataset's `pending`; its `outcome` there is a placeholder, not a failure). */
     async function outcomeGrid() {
-      const [o, pending] = await Promise.all([slice("outcome").catch(() => null),
-        rec().status === "finished" ? null : slice("pending").catch(() => null)]);
+      const [o, pending, sampled] = await Promise.all([slice("outcome").catch(() => null),
+        rec().status === "finished" ? null : slice("pending").catch(() => null),
+        slice("sampled").catch(() => null)]);
       if (!o) return null;
-      const grid = grid2d(o, state.x, state.y);
-      if (!pending) return grid;
-      const p = grid2d(pending, state.x, state.y);
-      return grid.map((row, j) => row.map((v, i) => (p[j][i] ? -1 : v)));
+      let grid = grid2d(o, state.x, state.y);
+      if (pending) {
+        const p = grid2d(pending, state.x, state.y);
+        grid = grid.map((row, j) => row.map((v, i) => (p[j][i] ? -1 : v)));
+      }
+      if (sampled) { // an adaptive study: -2 where a line took no point (never drawn or marked)
+        const t = grid2d(sampled, state.x, state.y);
+        grid = grid.map((row, j) => row.map((v, i) => (t[j][i] ? v : -2)));
+      }
+      return grid;
     }
 
     async function drawMap(outcomes) {
@@ -604,6 +611,8 @@
       return z.map((row, j) => Object.assign({
         label: state.y ? `${label(state.y)} = ${fmt(ys[j])}${extra ? " " + extra : ""}` : (extra || s.variable),
         values: row, outcome: o ? o[j] : null,
+        // an adaptive line's curve runs through its own samples, over the other lines' values
+        bridge: o ? o[j].map((v) => v === -2) : null,
       }, extra ? { dashed: true, outcome: null } : {}));
     }
 

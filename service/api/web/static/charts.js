@@ -225,6 +225,7 @@
       let s = parts.join(", ") + `: ${spec.zLabel} = ${fmt(spec.z[j][i])}`;
       if (spec.attenuating && spec.attenuating[j][i]) s += " (in a band)";
       if (o === -1) s += "; not computed yet";
+      else if (o === -2) s += "; not sampled by its adaptive line";
       else if (o !== null && o !== undefined && OUTCOME_NAMES[o]) s += `; ${OUTCOME_NAMES[o]}`;
       const why = spec.reason ? spec.reason[j][i] : "";
       if (why) s += `\n${why}`;
@@ -300,7 +301,7 @@
       s.color = s.color || PALETTE[k % PALETTE.length];
       let d = "", pen = false;
       s.values.forEach((v, i) => {
-        if (!finite(v)) { pen = false; return; }
+        if (!finite(v)) { if (!(s.bridge && s.bridge[i])) pen = false; return; }
         d += `${pen ? "L" : "M"}${X(xs[i]).toFixed(1)},${Y(v).toFixed(1)}`;
         pen = true;
         count++;
