@@ -32,7 +32,7 @@ import xarray as xr
 from service.studies.adaptive import BandEdgeLearner, FeatureLearner, Sample
 from service.studies.chunks import StudyStore, record_columns
 from service.studies.dataset import open_results, results_from_records
-from service.studies.points import PointStore, is_storable, point_key, solver_document
+from service.studies.points import PointStore, point_key, save_chunk, solver_document
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
 from service.studies.variables import OUTCOMES, outcome_names
@@ -235,13 +235,8 @@ class AdaptiveRun:
         """Store a chunk's records, tell their learners, queue what they ask next."""
         if self.points is not None and not retry:
             keys = keys or self.keys(start, stop)
-            pts = self.points_of(start, stop)
-            self.points.save(
-                [(k, p, r) for k, p, r in zip(keys, pts, records, strict=True)
-                 if is_storable(r)],
-                self._solver_doc,
-                link=(self.study.id, list(enumerate(keys, start=start))),
-            )  # fmt: skip
+            save_chunk(self.points, self.study.id, self._solver_doc, start, keys,
+                       self.points_of(start, stop), records)  # fmt: skip
         self.kernel_s += sum(float(r.get("wall_s") or 0.0) for r in records)
         for i, rec in zip(range(start, stop), records, strict=True):
             self._tell(i, rec)

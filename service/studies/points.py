@@ -34,6 +34,7 @@ __all__ = [
     "cell_of",
     "is_storable",
     "point_key",
+    "save_chunk",
     "solver_document",
     "study_keys",
 ]
@@ -167,3 +168,22 @@ class PointStore(Protocol):
     def link(self, study_id: str, pairs: Sequence[tuple[int, str]]) -> None:
         """Record that study ``study_id`` uses the points ``(index, key)`` (idempotent)."""
         ...
+
+
+def save_chunk(
+    store: PointStore,
+    study_id: str,
+    solver: Mapping[str, Any],
+    start: int,
+    keys: Sequence[str],
+    points: Sequence[dict[str, Any]],
+    records: Sequence[Mapping[str, Any]],
+) -> None:
+    """Store a finished chunk (points ``start…``): the records that are their points' own
+    result, and the study's links to every one, in one transaction. A point dict may carry
+    ``"_after"``: the key of the sweep point it started from (its stored start)."""
+    store.save(
+        [(k, p, r) for k, p, r in zip(keys, points, records, strict=True) if is_storable(r)],
+        solver,
+        link=(study_id, list(enumerate(keys, start=start))),
+    )

@@ -42,7 +42,7 @@ from typing import Any
 from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore, iter_chunk_ranges
 from service.studies.dataset import open_results, results_from_records, summarize
-from service.studies.points import PointStore, is_storable, solver_document, study_keys
+from service.studies.points import PointStore, save_chunk, solver_document, study_keys
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
 from service.studies.variables import OUTCOMES, outcome_names
@@ -286,12 +286,7 @@ class StudyRun:
                 for i, p in enumerate(pts):
                     if (start + i) % n:
                         p["_after"] = keys[i - 1]
-            self.points.save(
-                [(k, p, r) for k, p, r in zip(keys, pts, records, strict=True)
-                 if is_storable(r)],
-                self._solver_doc,
-                link=(self.study.id, list(enumerate(keys, start=start))),
-            )  # fmt: skip
+            save_chunk(self.points, self.study.id, self._solver_doc, start, keys, pts, records)
         self.store.write_chunk(start, stop, records, retry=retry)
         self.kernel_s += sum(r["wall_s"] for r in records)
         self.done += stop - start
