@@ -23,7 +23,7 @@ from sqlalchemy.engine import Engine
 
 from service.api.catalogue import PointRow, SolverRow, StudyPointRow, StudyRow, utcnow
 from service.studies.chunks import CHUNK_FIELDS, record_columns
-from service.studies.points import KEY_LENGTH, PARAM_COLUMNS, cell_of
+from service.studies.points import KEY_LENGTH, PARAM_COLUMNS, cell_of, solver_key
 from service.studies.variables import AXES, VARIABLES, outcome_attrs
 from worker.simulate import SOLVER_VERSION
 
@@ -115,7 +115,7 @@ class SqlPointStore:
             if link:
                 self.link(*link)
             return
-        skey = _solver_key(solver)
+        skey = solver_key(solver)
         now = utcnow()
         by_key: dict[str, dict[str, Any]] = {}
         for key, point, record in rows:
@@ -339,13 +339,6 @@ def _row_dict(m: Mapping[str, Any]) -> dict[str, Any]:
             out[k] = v
     out["solver"] = json.loads(m["settings"])
     return out
-
-
-def _solver_key(solver: Mapping[str, Any]) -> str:
-    import hashlib
-
-    text = json.dumps(dict(solver), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:KEY_LENGTH]
 
 
 def _finite(v: Any) -> float | None:

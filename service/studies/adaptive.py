@@ -25,7 +25,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["BandEdgeLearner", "Edge", "FeatureLearner", "Learner", "Sample"]
+__all__ = [
+    "COARSE_INTERVALS",
+    "BandEdgeLearner",
+    "Edge",
+    "FeatureLearner",
+    "Learner",
+    "Sample",
+    "default_min_width",
+]
 
 
 @dataclass(frozen=True)
@@ -88,6 +96,15 @@ def _check_int(name: str, value: int, minimum: int) -> int:
     if value < minimum:
         raise ValueError(f"{name} must be at least {minimum}, got {name}={value!r}")
     return int(value)
+
+
+#: The default coarse pass divides the range into this many intervals (``min_width``).
+COARSE_INTERVALS = 64
+
+
+def default_min_width(start: float, stop: float) -> float:
+    """The default coarse spacing: the range over :data:`COARSE_INTERVALS`."""
+    return (stop - start) / COARSE_INTERVALS
 
 
 def _grid(start: float, stop: float, num: int, min_width: float | None) -> list[float]:
@@ -287,9 +304,8 @@ class BandEdgeLearner(Learner):
         super().__init__(start, stop, num, max_points)
         self.threshold_db = _check_real("threshold_db", threshold_db)
         self.tol = _check_real("tol", tol, positive=True)
-        span = self.stop - self.start
         if min_width is None:
-            self.min_width = span / 64
+            self.min_width = default_min_width(self.start, self.stop)
         else:
             self.min_width = _check_real("min_width", min_width, positive=True)
         self.z = _check_real("z", z, positive=True)

@@ -23,20 +23,26 @@ import json
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import xarray as xr
 
-from service.studies.adaptive import BandEdgeLearner, FeatureLearner, Sample
+from service.studies.adaptive import (
+    BandEdgeLearner,
+    FeatureLearner,
+    Sample,
+    default_min_width,
+)
 from service.studies.chunks import StudyStore, record_columns
 from service.studies.dataset import open_results, results_from_records
 from service.studies.points import PointStore, point_key, save_chunk, solver_document
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
 from service.studies.variables import OUTCOMES, outcome_names
-from worker.simulate import SolverSettings, failed_result, simulate_chunk
+from worker.simulate import PointLimits, SolverSettings, failed_result, simulate_chunk
 
 __all__ = ["NOT_SAMPLED", "AdaptiveRun", "adaptive_dataset"]
 
@@ -104,9 +110,8 @@ class AdaptiveRun:
                 min_width=None if s.min_width is None else float(s.min_width),
                 max_points=int(s.max_points),
             )  # fmt: skip
-        # A coarse pass as for edges (default range/64), so no peak hides between two
-        # starting samples.
-        width = (stop - start) / 64 if s.min_width is None else float(s.min_width)
+        # A coarse pass as for edges, so no peak hides between two starting samples.
+        width = default_min_width(start, stop) if s.min_width is None else float(s.min_width)
         return FeatureLearner(
             start, stop, num,
             resolution=float(s.tol if s.resolution is None else s.resolution),
@@ -187,7 +192,8 @@ class AdaptiveRun:
 
     @property
     def done(self) -> int:
-        """Points with a record."""
+        """Points with a record (``computed`` counts every chunk's points, ``shared`` those of
+        them another study's task computed: ``ChunkPool``)."""
         return self.computed + self.reused
 
     @property
@@ -250,10 +256,8 @@ class AdaptiveRun:
         if self.progress and not self.cached:
             self.progress(self.done, self.total)
 
-    def run_serial(self, cancel: Callable[[], bool], limits: Any) -> None:
+    def run_serial(self, cancel: Callable[[], bool], limits: PointLimits) -> None:
         """Compute every batch in this process (reference runs, tests)."""
-        from dataclasses import asdict
-
         while self.pieces:
             if cancel():
                 raise Cancelled
@@ -270,33 +274,33 @@ class AdaptiveRun:
         """The dataset (``adaptive_dataset``) written to the results file; the summary."""
         if self.cached:
             ds = open_results(self.store.results_path)
-            n = int(ds["sampled"].sum()) if "sampled" in ds else int(ds["failed"].size)
-            return RunSummary(
-                study_id=self.study.id, path=self.store.results_path, points=n, computed=0,
-                reused=n, failed=0, irregular=0, unsettled=0,
-                wall_s=time.perf_counter() - self.t0, kernel_s=0.0, workers=0,
-                chunk_size=0, cached=True,
-            )  # fmt: skip
+            return self._summary(ds, int(ds["sampled"].sum()), 0, 0, cached=True)
         ds = adaptive_dataset(self)
         self.store.write_results(ds)
         self.store.remove_chunks()
-        recs = [r for r in self.records if r is not None]
-        names = outcome_names(record_columns(recs, ("outcome",))["outcome"]) if recs else []
-        counts = {k: int(np.sum(np.asarray(names) == k)) for k in OUTCOMES}
+        n = sum(r is not None for r in self.records)
+        return self._summary(ds, n, self.computed - self.shared, workers, cached=False)
+
+    def _summary(self, ds: xr.Dataset, n: int, computed: int, workers: int,
+                 cached: bool) -> RunSummary:  # fmt: skip
+        """Counts over the sampled points of an adaptive dataset."""
+        took = ds["sampled"].values.astype(bool)
+        names = outcome_names(ds["outcome"])[took]
+        counts = {k: int(np.sum(names == k)) for k in OUTCOMES}
         return RunSummary(
-            study_id=self.study.id, path=self.store.results_path, points=len(recs),
-            computed=self.computed, reused=self.reused,
-            failed=sum(1 for r in recs if r.get("failed")), irregular=counts["irregular"],
+            study_id=self.study.id, path=self.store.results_path, points=n, computed=computed,
+            reused=n - computed, failed=counts["failed"], irregular=counts["irregular"],
             unsettled=counts["unsettled"], wall_s=time.perf_counter() - self.t0,
-            kernel_s=self.kernel_s, workers=workers, chunk_size=self.chunk,
-            outcomes={k: v for k, v in counts.items()},
+            kernel_s=self.kernel_s, workers=workers, chunk_size=0 if cached else self.chunk,
+            cached=cached, outcomes=counts,
         )  # fmt: skip
 
     def cancelled_summary(self, workers: int) -> RunSummary:
         """The summary of a run stopped on request (its points are in the store)."""
         return RunSummary(
             study_id=self.study.id, path=self.store.results_path, points=self.total,
-            computed=self.computed, reused=self.reused, failed=0, irregular=0, unsettled=0,
+            computed=self.computed - self.shared, reused=self.reused + self.shared, failed=0,
+            irregular=0, unsettled=0,
             wall_s=time.perf_counter() - self.t0, kernel_s=self.kernel_s, workers=workers,
             chunk_size=self.chunk, cancelled=True,
         )  # fmt: skip

@@ -26,16 +26,20 @@ from typing import Any, Protocol
 from service.studies.schema import Study
 from worker.model import CellParams
 from worker.simulate import POINT_KEYS, SOLVER_VERSION, SolverSettings
+from worker.solvers.settings import OVER_STEPS, OVER_TIME
 
 __all__ = [
     "KEY_LENGTH",
     "PARAM_COLUMNS",
+    "TASK_FAILED",
     "PointStore",
     "cell_of",
+    "digest",
     "is_storable",
     "point_key",
     "save_chunk",
     "solver_document",
+    "solver_key",
     "study_keys",
 ]
 
@@ -44,8 +48,10 @@ __all__ = [
 KEY_LENGTH = 32
 #: The cell's parameters as stored (and queried) per point, in ``CellParams`` order.
 PARAM_COLUMNS = tuple(f.name for f in dataclasses.fields(CellParams))
+#: How the reason of a point whose task failed on the cluster begins (the runner's).
+TASK_FAILED = "task failed after "
 # Failures that depend on the run, not the point: never stored (recomputed when asked again).
-_RUN_DEPENDENT = ("time limit of ", "step budget of ", "task failed after ")
+_RUN_DEPENDENT = (OVER_TIME, OVER_STEPS, TASK_FAILED)
 
 
 _DEFAULTS = {
@@ -81,6 +87,16 @@ def _dumps(doc: Any) -> str:
     return json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
+def digest(text: str) -> str:
+    """The key of a canonical JSON text (points, solver settings): 128 bits of SHA-256."""
+    return hashlib.sha256(text.encode()).hexdigest()[:KEY_LENGTH]
+
+
+def solver_key(solver: Mapping[str, Any]) -> str:
+    """The key of a :func:`solver_document` (the point store keeps each set once)."""
+    return digest(_dumps(dict(solver)))
+
+
 def point_key(
     point: Mapping[str, Any],
     solver: Mapping[str, Any],
@@ -110,7 +126,7 @@ def _key(point: Mapping[str, Any], solver_json: str, after: str | None, version:
         f'{{"cell":{_dumps(cell)},"solver":{solver_json},"start":{_dumps(start)},'
         f'"version":{_dumps(version)}}}'
     )
-    return hashlib.sha256(text.encode()).hexdigest()[:KEY_LENGTH]
+    return digest(text)
 
 
 def _iter_keys(study: Study, start: int, stop: int, solver: Mapping[str, Any]) -> Iterator[str]:

@@ -42,7 +42,13 @@ from typing import Any
 from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore, iter_chunk_ranges
 from service.studies.dataset import open_results, results_from_records, summarize
-from service.studies.points import PointStore, save_chunk, solver_document, study_keys
+from service.studies.points import (
+    TASK_FAILED,
+    PointStore,
+    save_chunk,
+    solver_document,
+    study_keys,
+)
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
 from service.studies.variables import OUTCOMES, outcome_names
@@ -224,6 +230,7 @@ class StudyRun:
                     for i in range(0, e - s, n):
                         whole = all(have[i : i + n])
                         have[i : i + n] = [whole] * n
+                self.points.link(self.study.id, [(s + i, k) for i, k in enumerate(keys) if have[i]])
                 i = 0
                 while i < e - s:
                     j = i
@@ -231,7 +238,6 @@ class StudyRun:
                         j += 1
                     if have[i]:
                         self.store.write_chunk(s + i, s + j, [known[k] for k in keys[i:j]])
-                        self.points.link(self.study.id, list(enumerate(keys[i:j], start=s + i)))
                     elif out and out[-1][1] == s + i:
                         out[-1] = (out[-1][0], s + j)
                     else:
@@ -556,7 +562,7 @@ class ChunkPool:
             return
         piece.records[pos] = record
         piece.left -= 1
-        if str(record.get("reason") or "").startswith("task failed after"):
+        if str(record.get("reason") or "").startswith(TASK_FAILED):
             piece.retry = True
         if piece.left == 0:
             self._complete(piece)
@@ -637,7 +643,7 @@ class ChunkPool:
             except Exception as exc:  # noqa: BLE001 - whatever the task raised, or KilledWorker
                 # Failed even after its retries (or its workers kept dying): record the points
                 # as failed with the reason, and mark the chunk so a rerun tries them again.
-                reason = f"task failed after {TASK_RETRIES} retries: {type(exc).__name__}: {exc}"
+                reason = f"{TASK_FAILED}{TASK_RETRIES} retries: {type(exc).__name__}: {exc}"
                 rec = failed_result(SolverSettings(**run.solver), reason)
                 records = [dict(rec) for _ in positions]
             # Fewer records than points: stopped by a cancel, recomputed on resume.

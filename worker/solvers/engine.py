@@ -56,7 +56,14 @@ from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittanc
 from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.linear import LinearTail
-from worker.solvers.settings import PointCancelled, PointLimits, PointResult, SolverSettings
+from worker.solvers.settings import (
+    OVER_STEPS,
+    OVER_TIME,
+    PointCancelled,
+    PointLimits,
+    PointResult,
+    SolverSettings,
+)
 
 __all__ = [
     "DIVERGENCE_FACTOR",
@@ -350,10 +357,10 @@ class _Engine:
             raise PointCancelled(f"cancelled in period {self.period}")
         elapsed = time.perf_counter() - self.t0
         if elapsed > self.limits.wall_s:
-            return (f"time limit of {self.limits.wall_s:g} s per point exceeded after "
+            return (f"{OVER_TIME}{self.limits.wall_s:g} s per point exceeded after "
                     f"{self.period} periods ({self.work['steps']} steps)")  # fmt: skip
         if self.work["steps"] > self.limits.steps:
-            return (f"step budget of {self.limits.steps} steps per point exceeded after "
+            return (f"{OVER_STEPS}{self.limits.steps} steps per point exceeded after "
                     f"{self.period} periods")  # fmt: skip
         return ""
 

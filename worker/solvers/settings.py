@@ -16,6 +16,8 @@ __all__ = [
     "METHODS",
     "OUTCOMES",
     "SOLVER_VERSION",
+    "OVER_STEPS",
+    "OVER_TIME",
     "PointCancelled",
     "PointLimits",
     "PointResult",
@@ -37,6 +39,11 @@ OUTCOMES = ("linear", "periodic", "irregular", "unsettled", "failed")
 def int_in(name: str, value: Any, lo: int, hi: int) -> int:
     """``value`` as an int in ``lo…hi``, or a ``ValueError`` naming the field."""
     return integer(name, value, lo, hi)
+
+
+#: How the reason of a point over its ``PointLimits`` begins (the rest says by how much).
+OVER_TIME = "time limit of "
+OVER_STEPS = "step budget of "
 
 
 @dataclass(frozen=True)
