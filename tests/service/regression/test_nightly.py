@@ -314,6 +314,7 @@ def _make_old(path: Path) -> None:
     ds.to_netcdf(path, engine="netcdf4", encoding=encoding(ds))
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_baseline_of_an_older_solver_says_to_recut_it(
     suite: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:

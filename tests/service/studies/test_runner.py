@@ -276,6 +276,7 @@ def test_sigkill_and_resume(tmp_path: Path) -> None:
     xr.testing.assert_identical(comparable(resumed), comparable(open_results(ref.path)))
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_cli_show_and_bad_study(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     study = _study("cli")
     s = run_study(study, tmp_path, serial=True)

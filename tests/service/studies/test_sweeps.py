@@ -287,6 +287,7 @@ class _CancelMidLine:
         return self.polls < 0
 
 
+@pytest.mark.slow  # runs whole (small) studies
 def test_resume_after_cancel_equals_an_uninterrupted_run(tmp_path: Path) -> None:
     study = _study(sweep={"axis": "gamma_r"}, initial=["rest", "linear"])
     n = study.line_length
