@@ -208,7 +208,8 @@ def main() -> None:
         f"{result['adaptive_wall_s']} s |",
         f"| points per line | {result['uniform_points_per_line']} | mean "
         f"{result['points_per_line_mean']}, max {result['points_per_line_max']} |",
-        f"| edges | interpolated (error up to ~0.01) | {result['edges_certain']} located, "
+        "| edges | interpolated between points 0.02 apart (error not measured) | "
+        f"{result['edges_certain']} located, "
         f"{result['edges_uncertain']} uncertain (interval) |",
         "",
         f"Located edges with a precise reference: {result['edges_within_tol']} of "
