@@ -62,6 +62,7 @@ def _cmd_points(args: argparse.Namespace) -> int:
 
     def action(settings: Any, shown: str) -> int:
         from service.api.points import points_csv, points_dataset
+        from service.studies.dataset import write_netcdf
 
         cat, store = _open(settings)
         try:
@@ -75,7 +76,7 @@ def _cmd_points(args: argparse.Namespace) -> int:
         if args.format == "netcdf":
             if not args.output:
                 raise ValueError("--format netcdf needs --output FILE")
-            points_dataset(rows).to_netcdf(args.output, engine="netcdf4")
+            write_netcdf(points_dataset(rows), args.output)
         else:
             text = (
                 points_csv(rows)

@@ -177,7 +177,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from service.api.server import ServerThread
     from service.client import Client
-    from service.studies.dataset import encoding
+    from service.studies.dataset import encoding, write_netcdf
     from service.studies.shipped import resolve_study_file
 
     study = resolve_study_file(args.study or ("paper-fig5-gaps" if args.full else "demo-fig5"))
@@ -199,7 +199,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             rec = _wait(c, rec["id"], progress=not args.no_progress)
             ds = c.dataset(rec["id"])
             nc = out / f"{rec['name']}.nc"
-            ds.to_netcdf(nc, engine="netcdf4", encoding=encoding(ds))
+            write_netcdf(ds, nc, encoding(ds))
             sel = _demo_selection(ds, "gamma_r", "gap")
             # self-describing: variable, axes with units, threshold and the slice it used
             doc = c.bandgap_json(rec["id"], x="gamma_r", y="gap", nearest=True, **sel)

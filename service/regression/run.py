@@ -27,7 +27,7 @@ from service.regression.report import NightlyReport
 from service.regression.spec import RegressionSpec
 from service.regression.suite import SuiteEntry, SuiteError, load_suite, suite_folders
 from service.studies.chunks import atomic_write, data_root
-from service.studies.dataset import encoding, open_results, summarize
+from service.studies.dataset import encoding, open_results, summarize, write_netcdf
 from service.studies.provenance import git_dirty
 from service.studies.schema import Study, study_from_canonical
 from service.studies.shipped import ShippedStudyError, baselines_dir, in_source_checkout
@@ -73,7 +73,7 @@ def write_baseline(
     }
     p = Path(path)
     enc = encoding(out)
-    atomic_write(p, lambda tmp: out.to_netcdf(tmp, engine="netcdf4", encoding=enc))
+    atomic_write(p, lambda tmp: write_netcdf(out, tmp, enc))
     os.chmod(p, 0o644)  # a shared, committed file (the temporary file was private)
     return p
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from service.studies.dataset import FILL_INT, PENDING, encoding
+from service.studies.dataset import FILL_INT, PENDING, encoding, write_netcdf
 from service.studies.schema import Study
 from service.studies.variables import SWEEP_VARIABLES, VARIABLES, outcome_codes
 from worker.simulate import SOLVER_VERSION
@@ -391,7 +391,7 @@ class StudyStore:
     def write_results(self, ds: xr.Dataset) -> Path:
         """Write the collated dataset atomically (NetCDF4, zlib)."""
         enc = encoding(ds)
-        atomic_write(self.results_path, lambda p: ds.to_netcdf(p, engine="netcdf4", encoding=enc))
+        atomic_write(self.results_path, lambda p: write_netcdf(ds, p, enc))
         return self.results_path
 
     def remove_chunks(self) -> None:

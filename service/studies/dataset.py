@@ -27,6 +27,7 @@ import datetime as _dt
 import json
 import math
 import os
+import threading
 from collections.abc import Mapping
 from dataclasses import asdict
 from pathlib import Path
@@ -57,9 +58,11 @@ __all__ = [
     "json_number",
     "json_text",
     "jsonable",
+    "NETCDF_LOCK",
     "open_results",
     "results_from_records",
     "summarize",
+    "write_netcdf",
 ]
 
 FILL_FLOAT = 9.969209968386869e36  # netCDF's default double fill (NC_FILL_DOUBLE)
@@ -243,16 +246,31 @@ def encoding(ds: xr.Dataset) -> dict[str, dict[str, Any]]:
     return enc
 
 
+#: Held by every NetCDF read and write of this process. The netCDF-C and HDF5 libraries are
+#: not thread-safe, and xarray's own lock is released between its calls into them (reading a
+#: file's attributes, for one), so the service's threads (the runner writing a results file,
+#: a request or the nightly reading another) crashed the process when they met.
+NETCDF_LOCK = threading.RLock()
+
+
 def open_results(path: str | os.PathLike[str]) -> xr.Dataset:
     """Open a results file fully into memory (the file is closed afterwards)."""
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"no such results file: {p}")
     try:
-        with xr.open_dataset(p, engine="netcdf4") as ds:
+        with NETCDF_LOCK, xr.open_dataset(p, engine="netcdf4") as ds:
             return ds.load()
     except OSError as exc:
         raise ValueError(f"{p} is not a readable NetCDF file: {exc}") from None
+
+
+def write_netcdf(
+    ds: xr.Dataset, path: str | os.PathLike[str], enc: Mapping[str, Any] | None = None
+) -> None:
+    """Write ``ds`` as NetCDF4 to ``path`` (``enc``: its encoding), under :data:`NETCDF_LOCK`."""
+    with NETCDF_LOCK:
+        ds.to_netcdf(path, engine="netcdf4", encoding=dict(enc) if enc else None)
 
 
 # --------------------------------------------------------------------------- counts

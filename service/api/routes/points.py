@@ -16,7 +16,7 @@ from service.api.points import FLOAT_PARAMS, MAX_PAGE, PointQuery, SqlPointStore
 from service.api.points import points_dataset as _dataset
 from service.api.routes.results import NETCDF, RESULT_ERRORS
 from service.studies.chunks import is_study_id
-from service.studies.dataset import json_text
+from service.studies.dataset import json_text, write_netcdf
 from service.studies.variables import OUTCOMES
 from worker.simulate import SOLVER_VERSION
 
@@ -119,5 +119,5 @@ def _netcdf(rows: list[dict[str, Any]]) -> bytes:
     ds = _dataset(rows)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "points.nc"
-        ds.to_netcdf(path, engine="netcdf4")
+        write_netcdf(ds, path)
         return path.read_bytes()

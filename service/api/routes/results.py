@@ -33,6 +33,7 @@ from service.studies.dataset import (
     jsonable,
     open_results,
     results_from_records,
+    write_netcdf,
 )
 from service.studies.schema import Study, study_from_canonical
 
@@ -158,7 +159,7 @@ def _write_partial(store: StudyStore, ds: xr.Dataset, state: PartialState) -> Pa
     are removed (the previous may still be streaming to a client)."""
     digest = hashlib.sha256(repr(sorted(state.key)).encode()).hexdigest()[:12]
     path = store.folder / _PARTIAL_FILE.format(done=int(state.filled.sum()), digest=digest)
-    atomic_write(path, lambda p: ds.to_netcdf(p, engine="netcdf4", encoding=encoding(ds)))
+    atomic_write(path, lambda p: write_netcdf(ds, p, encoding(ds)))
     older = sorted(
         (p for p in store.folder.glob("partial-*.nc") if p != path),
         key=lambda p: p.stat().st_mtime_ns if p.exists() else 0,

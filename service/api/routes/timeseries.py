@@ -30,7 +30,7 @@ from service.api.routes.results import (
     json_response,
     study_of,
 )
-from service.studies.dataset import FILL_FLOAT, jsonable
+from service.studies.dataset import FILL_FLOAT, jsonable, write_netcdf
 from service.studies.schema import Study
 from service.studies.specs import initial_states
 from worker.simulate import EVENT_FIELDS, HISTORY_FIELDS, PointLimits, point_history
@@ -221,7 +221,7 @@ def _history_netcdf(
     fd, tmp = tempfile.mkstemp(suffix=".nc", prefix="impactcell-ts-")
     os.close(fd)
     try:
-        ds.to_netcdf(tmp, engine="netcdf4", encoding=enc)
+        write_netcdf(ds, tmp, enc)
         body = Path(tmp).read_bytes()  # small (≤ 50 periods of one point): cached as bytes
     finally:
         os.unlink(tmp)
