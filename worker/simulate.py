@@ -301,11 +301,11 @@ def warm_up(method: str | None = None, *, quiet: bool = False) -> None:
     """Compile (or load from numba's cache) a method's kernels once per process (default:
     every method), so no point's ``wall_s`` includes it. A first compilation on a machine says
     what it is doing and how long it usually takes; ``impactcell warmup`` does it ahead."""
-    p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, modes=1)
     for m in METHODS if method is None else (method,):
         if m in _warm:
             continue
         _warm.add(m)
+        p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, modes=1)
         cached = kernels_cached(m)
         if cached is False and not quiet:
             print(

@@ -6,6 +6,7 @@ exponents; the reference samples f densely and bisects the first sign change.
 
 from __future__ import annotations
 
+import cmath
 import math
 
 import numpy as np
@@ -14,8 +15,13 @@ import pytest
 from worker.solvers.event.roots import (
     STACK,
     STACK_COLS,
+    cabs,
+    cexp,
+    clear_sums,
+    clear_test,
     clear_whole,
     first_root,
+    first_root_whole,
     phi1,
     refine,
     skip_start,
@@ -185,3 +191,42 @@ def test_stiff_modes_are_bounded_by_their_size_and_roots_still_found(n):
             decided += 1
             with_root += 1
     assert decided >= n * 11 // 12 and max(1, n // 12) <= with_root <= n * 11 // 12
+
+
+def test_cexp_is_cmath_exp_and_cabs_is_abs_to_an_ulp():
+    rng = np.random.default_rng(23)
+    zs = [complex(x, y) for x, y in rng.normal(scale=30.0, size=(2000, 2))]
+    zs += [0j, 1e-300j, complex(-700.0, 3.0), complex(700.0, -1e5)]
+    for z in zs:  # equal here; an ulp allowed for another libm
+        assert cexp(z) == pytest.approx(cmath.exp(z), rel=4.5e-16, abs=0.0)
+    for z in zs + [complex(1e-200, -3e-201), complex(3e180, 1e180), complex(1e150, 1e150)]:
+        assert cabs(z) == pytest.approx(abs(z), rel=2.3e-16, abs=0.0)
+
+
+def test_shared_clear_sums_prove_both_signs_as_clear_whole_does():
+    # one set of sums of w serves both stops (g1 - w and g2 + w)
+    rng = np.random.default_rng(29)
+    for _ in range(300):
+        c, lam, off = random_sum(rng, 3)
+        ln = float(rng.uniform(0.01, 0.5))
+        E = np.exp(lam * ln)
+        sums = clear_sums(c, lam, E, len(c), ln)
+        for sgn in (1.0, -1.0):
+            want = clear_whole(sgn * c, lam, E, len(c), off, ln)
+            assert clear_test(sums, off, sgn, ln) == want
+
+
+@pytest.mark.parametrize("stiff", [False, True])
+def test_first_root_whole_is_first_root_with_the_end_exponentials_given(stiff):
+    rng = np.random.default_rng(31 + stiff)
+    for _ in range(200):
+        c, lam, off = random_sum(rng, 3)
+        if stiff:
+            c = np.append(c, 2e-3 * (rng.normal() + 1j * rng.normal()))
+            lam = np.append(lam, -rng.uniform(0.0, 2.0) + 1j * rng.uniform(150.0, 250.0))
+        ln = float(rng.uniform(0.05, 4.0))
+        E = np.array([cexp(complex(x)) for x in lam * ln])
+        want = call_first_root(c, lam, off, 0.0, ln)
+        stack = np.zeros((STACK, STACK_COLS))
+        got = first_root_whole(c, lam, E, len(c), off, ln, 1e-13, stack, np.zeros(len(c)))
+        assert got == pytest.approx(want, abs=1e-12 * ln)

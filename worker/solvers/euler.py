@@ -23,7 +23,7 @@ from worker.solvers.stepping import close_row, contact_step, extrema, record_ste
 DEFAULT_STEPS = 1024
 
 
-@njit(cache=True, nogil=True)
+@njit(**ms.KERNEL_JIT)
 def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, spp,
                  gamma_r, f_scale, MinvC, MinvK, Minv_es, MinvX, f_sin, f_cos, W, d, G, g1, g2,
                  use_lemke, lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z,

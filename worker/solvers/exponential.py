@@ -48,7 +48,7 @@ def _propagate(Phi, E, x, cf, sf, xn, nx):
         xn[i] = acc
 
 
-@njit(cache=True, nogil=True)
+@njit(**ms.KERNEL_JIT)
 def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh,
                        n_coarse, n_sub, gamma_r, f_scale, Phi_c, E_c, Phi_f, E_f, b_f, psi_c,
                        psi_f, psib_f, gl_c, gl_f, glb_f, glb0, W, d, Gf, MinvX_s, g1, g2,

@@ -67,13 +67,14 @@ class LinearTail:
             return False
         if self.amp + float(mag @ np.exp(decay * horizon)) >= self.gate:
             return False
-        lo, hi = 0.0, horizon  # the bound decreases in t: bisection for where it passes
-        for _ in range(40):
-            mid = 0.5 * (lo + hi)
-            if self.amp + float(mag @ np.exp(decay * mid)) < self.gate:
-                hi = mid
-            else:
-                lo = mid
+        # the bound decreases in t: where it passes the gate, to horizon/1024, on two grids
+        # (one vectorised evaluation each; 40 scalar bisection steps cost ~0.1 ms a point)
+        lo, hi = 0.0, horizon
+        for _ in range(2):
+            ts = np.linspace(lo, hi, 33)
+            below = self.amp + mag @ np.exp(np.outer(decay, ts)) < self.gate
+            k = int(np.argmax(below))  # the first grid time below the gate (hi always is)
+            lo, hi = ts[max(k - 1, 0)], ts[k]
         coef = np.append(c, self.w_hat)
         lam = np.append(self.lam, 1j * self.gamma_r)
         nk = len(coef)

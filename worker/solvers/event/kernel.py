@@ -23,7 +23,6 @@ Gauss nodes per piece.
 
 from __future__ import annotations
 
-import cmath
 import math
 
 import numpy as np
@@ -230,7 +229,7 @@ def _phi_shift(E, lam, shift, ln, es):
     """(e^{(λ+shift)·ln} - 1)/(λ + shift) from E = e^{λ·ln} and es = e^{shift·ln}."""
     x = lam + shift
     z = x * ln
-    if abs(z) < 1e-3:
+    if z.real * z.real + z.imag * z.imag < 1e-6:  # |z| < 1e-3 without a hypot
         return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
     return (E * es - 1.0) / x
 
@@ -255,7 +254,7 @@ def _measure_piece(r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r, 
     if not measure:
         return lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     shift = -1j * gamma_r
-    es = cmath.exp(shift * ln)
+    es = rt.cexp(shift * ln)
     acc0 = 0.0 + 0.0j
     acc1 = 0.0 + 0.0j
     for m in range(nk):
@@ -272,18 +271,33 @@ def _measure_piece(r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r, 
             acc1 += RV[r, R_SB, m] * a[m] * p
     a0, a1 = _phase_rot(acc0.real, acc0.imag, ph)
     b0, b1 = _phase_rot(acc1.real, acc1.imag, ph)
-    vv = 0.0
-    vb = 0.0
-    for j in range(4):
-        t = ms.GL_NODES[j] * ln
-        v = 0.0
-        b = 0.0
-        for m in range(nk):
-            e = a[m] * cmath.exp(lam[r, m] * t)
-            v += (RV[r, R_SD, m] * e).real
-            b += (RV[r, R_SBD, m] * e).real
-        vv += ms.GL_WEIGHTS[j] * v * v
-        vb += ms.GL_WEIGHTS[j] * b * v
+    # ṡ and ṡ_b at the four Gauss nodes; the nodes are symmetric, so the step from the third
+    # to the fourth is the one from the first to the second (three exponentials per mode)
+    t0 = ms.GL_NODES[0] * ln
+    t1 = ms.GL_NODES[1] * ln
+    t2 = ms.GL_NODES[2] * ln
+    v0 = v1 = v2 = v3 = 0.0
+    q0 = q1 = q2 = q3 = 0.0
+    for m in range(nk):
+        lm = lam[r, m]
+        rd = RV[r, R_SD, m]
+        rb = RV[r, R_SBD, m]
+        step = rt.cexp(lm * (t1 - t0))
+        e = a[m] * rt.cexp(lm * t0)
+        v0 += (rd * e).real
+        q0 += (rb * e).real
+        e *= step
+        v1 += (rd * e).real
+        q1 += (rb * e).real
+        e = a[m] * rt.cexp(lm * t2)
+        v2 += (rd * e).real
+        q2 += (rb * e).real
+        e *= step
+        v3 += (rd * e).real
+        q3 += (rb * e).real
+    w = ms.GL_WEIGHTS
+    vv = w[0] * v0 * v0 + w[1] * v1 * v1 + w[2] * v2 * v2 + w[3] * v3 * v3
+    vb = w[0] * q0 * v0 + w[1] * q1 * v1 + w[2] * q2 * v2 + w[3] * q3 * v3
     return lo, hi, a0, a1, b0, b1, ln * vv, ln * vb
 
 
@@ -407,7 +421,7 @@ def _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact):
     kst[ms.K_CONTACT] = contact
 
 
-@njit(cache=True, nogil=True)
+@njit(**ms.KERNEL_JIT)
 def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
                  nzr, nk, Phi, eh, lam, V, Vi, wt, R, RV, Pin, Qout, psi, gl, W, MinvX, G, g1,
                  g2, bilateral, N, n_grid, gamma_r, f_scale, margin, event_tol, max_events_pp,
@@ -594,14 +608,18 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         Ew[q] = eh[r, q]
                 else:
                     for q in range(nkr):
-                        Ew[q] = cmath.exp(lam[r, q] * ln)
+                        Ew[q] = rt.cexp(lam[r, q] * ln)
                 t_ev = -1.0
                 kind = 0
                 if r == 0:
+                    # the gaps are g1 - w and g2 + w: one set of sums of w proves both clear
+                    _coef(RV, 0, R_W, a, nkr, 1.0, c2)
+                    sums = rt.clear_sums(c2, lam[0], Ew, nkr, ln)
+                    _coef(RV, 0, R_W, a, nkr, -1.0, c1)
                     for kk in range(1, 3):
                         gk = g1 if kk == 1 else g2
+                        sg = -1.0 if kk == 1 else 1.0
                         cc = c1 if kk == 1 else c2
-                        _coef(RV, 0, R_W, a, nkr, -1.0 if kk == 1 else 1.0, cc)
                         ts = 0.0
                         if skip_on and skip_stop == kk:
                             if skip_rem >= ln:
@@ -610,9 +628,13 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         lim = ln if t_ev < 0.0 else t_ev
                         if ts >= lim:
                             continue
-                        if ts == 0.0 and lim == ln and rt.clear_whole(cc, lam[0], Ew, nkr, gk, ln):
-                            continue
-                        te = rt.first_root(cc, lam[0], nkr, gk, ts, lim, tol_t, stack, w4)
+                        if ts == 0.0 and lim == ln:
+                            if rt.clear_test(sums, gk, sg, ln):
+                                continue
+                            te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t, stack,
+                                                     w4)  # fmt: skip
+                        else:
+                            te = rt.first_root(cc, lam[0], nkr, gk, ts, lim, tol_t, stack, w4)
                         if te >= 0.0 and (t_ev < 0.0 or te < t_ev):
                             t_ev = te
                             kind = kk
@@ -620,15 +642,20 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     sgn = -1.0 if r == 1 else 1.0
                     _coef(RV, r, R_MU, a, nkr, sgn, c1)
                     ts = skip_rem if skip_on else 0.0
-                    if ts < ln and not (ts == 0.0 and rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln)):
+                    te = -1.0
+                    if ts == 0.0:
+                        if not rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln):
+                            te = rt.first_root_whole(c1, lam[r], Ew, nkr, 0.0, ln, tol_t, stack,
+                                                     w4)  # fmt: skip
+                    elif ts < ln:
                         te = rt.first_root(c1, lam[r], nkr, 0.0, ts, ln, tol_t, stack, w4)
-                        if te >= 0.0:
-                            t_ev = te
-                            kind = 2 + r  # release from stop r
+                    if te >= 0.0:
+                        t_ev = te
+                        kind = 2 + r  # release from stop r
                 lp = t_ev if t_ev >= 0.0 else ln
                 if t_ev >= 0.0:
                     for q in range(nkr):
-                        Ew[q] = cmath.exp(lam[r, q] * lp)
+                        Ew[q] = rt.cexp(lam[r, q] * lp)
                     _state_E(V, r, a, Ew, nkr, nz, ye)
                 elif not have_ye:
                     _state_E(V, r, a, Ew, nkr, nz, ye)

@@ -15,7 +15,6 @@ and changes nothing above (each bound term is ``|2c|``, the pair's true bound).
 
 from __future__ import annotations
 
-import cmath
 import math
 
 from numba import njit
@@ -28,12 +27,32 @@ STIFF = 20.0  # |λ|·length beyond which a mode counts as stiff over a search i
 
 
 @njit(cache=True, nogil=True)
+def cexp(z):
+    """e^z of a finite z: ``cmath.exp`` without its branches for infinite and NaN parts (the
+    same value; the search never sees those, the kernel ends a run on a non-finite state)."""
+    r = math.exp(z.real)
+    return complex(r * math.cos(z.imag), r * math.sin(z.imag))
+
+
+@njit(cache=True, nogil=True)
+def cabs(z):
+    """|z| by the plain square root where its squares neither overflow nor underflow (hypot's
+    scaling is several times slower), within an ulp of ``abs(z)``."""
+    x = abs(z.real)
+    y = abs(z.imag)
+    m = max(x, y)
+    if 1e-150 < m < 1e150:
+        return math.sqrt(x * x + y * y)
+    return math.hypot(x, y)
+
+
+@njit(cache=True, nogil=True)
 def ev(c, lam, nz, off, t):
     """f(t) and ḟ(t)."""
     f = off
     d = 0.0
     for k in range(nz):
-        e = c[k] * cmath.exp(lam[k] * t)
+        e = c[k] * cexp(lam[k] * t)
         f += e.real
         d += (e * lam[k]).real
     return f, d
@@ -45,7 +64,7 @@ def ev2(c, lam, nz, t):
     d = 0.0
     dd = 0.0
     for k in range(nz):
-        e = c[k] * lam[k] * cmath.exp(lam[k] * t)
+        e = c[k] * lam[k] * cexp(lam[k] * t)
         d += e.real
         dd += (e * lam[k]).real
     return d, dd
@@ -68,7 +87,7 @@ def bound_weights(c, lam, nz, w4):
     """w4[k] = |c_k| |λ_k|⁴, the weights of :func:`bound4`."""
     for k in range(nz):
         m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
-        w4[k] = abs(c[k]) * m2 * m2
+        w4[k] = cabs(c[k]) * m2 * m2
 
 
 @njit(cache=True, nogil=True)
@@ -135,26 +154,66 @@ def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
     ``stack`` (STACK × STACK_COLS) and ``w4`` (>= nz) are scratch arrays. Where some mode
     turns through several cycles over the interval (stiff high modes: its λ⁴ makes the
     Hermite error bound useless), the search bounds those modes by their size instead."""
-    total = t1 - t0
-    stiff = False
-    for k in range(nz):
-        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
-        if m2 * total * total > STIFF * STIFF and c[k] != 0:
-            stiff = True
-            break
-    if stiff:
-        return _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4)
-    return _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4)
-
-
-@njit(cache=True, nogil=True)
-def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4):
-    """:func:`first_root` with the Hermite cubic of the whole sum and its error bound."""
+    if _stiff(c, lam, nz, t1 - t0):
+        cut2 = (4.43 / (t1 - t0)) ** 2
+        f0, d0, fs0, ds0 = _ev_split(c, lam, nz, off, t0, cut2)
+        if f0 <= 0.0:
+            return t0
+        f1, d1, fs1, ds1 = _ev_split(c, lam, nz, off, t1, cut2)
+        return _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds0,
+                                 f1, d1, fs1, ds1)  # fmt: skip
     f0, d0 = ev(c, lam, nz, off, t0)
     if f0 <= 0.0:
         return t0
-    bound_weights(c, lam, nz, w4)
     f1, d1 = ev(c, lam, nz, off, t1)
+    return _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
+
+
+@njit(cache=True, nogil=True)
+def first_root_whole(c, lam, E, nz, off, ln, tol_t, stack, w4):
+    """:func:`first_root` on [0, ln] with ``E = e^{λ·ln}`` given: the ends cost no
+    exponentials."""
+    stiff = _stiff(c, lam, nz, ln)
+    cut2 = (4.43 / ln) ** 2 if stiff else math.inf
+    f0 = fs0 = f1 = fs1 = off
+    d0 = ds0 = d1 = ds1 = 0.0
+    for k in range(nz):  # as _ev_split at 0 and at ln
+        cl = c[k] * lam[k]
+        e = c[k] * E[k]
+        f0 += c[k].real
+        d0 += cl.real
+        er = e.real
+        dr = (e * lam[k]).real
+        f1 += er
+        d1 += dr
+        if lam[k].real * lam[k].real + lam[k].imag * lam[k].imag <= cut2:
+            fs0 += c[k].real
+            ds0 += cl.real
+            fs1 += er
+            ds1 += dr
+    if f0 <= 0.0:
+        return 0.0
+    if stiff:
+        return _first_root_split(c, lam, nz, off, 0.0, ln, tol_t, stack, w4, f0, d0, fs0, ds0,
+                                 f1, d1, fs1, ds1)  # fmt: skip
+    return _first_root_plain(c, lam, nz, off, 0.0, ln, tol_t, stack, w4, f0, d0, f1, d1)
+
+
+@njit(cache=True, nogil=True)
+def _stiff(c, lam, nz, total):
+    """Whether some mode of the sum turns through more than ~3 cycles over ``total``."""
+    for k in range(nz):
+        m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
+        if m2 * total * total > STIFF * STIFF and c[k] != 0:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1):
+    """:func:`first_root` with the Hermite cubic of the whole sum and its error bound (f and
+    ḟ at both ends given, f(t0) > 0)."""
+    bound_weights(c, lam, nz, w4)
     total = t1 - t0
     tiny = 1e-9 * total
     stack[0, 0] = t0
@@ -170,10 +229,15 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4):
         hi = stack[sp, 1]
         flo = stack[sp, 2]
         dlo = stack[sp, 3]
-        fhi = stack[sp, 4]
-        dhi = stack[sp, 5]
         if flo <= 0.0:
             return lo
+        fhi = stack[sp, 4]
+        dhi = stack[sp, 5]
+        if math.isnan(fhi):  # an inner point of a split: evaluated now, for both its pieces
+            fhi, dhi = ev(c, lam, nz, off, hi)
+            if sp > 0:
+                stack[sp - 1, 2] = fhi
+                stack[sp - 1, 3] = dhi
         ln = hi - lo
         if fhi <= 0.0:
             # sign change; a long piece may hide an earlier touch, so look closer first
@@ -189,26 +253,18 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4):
                 if fc <= 0.0:
                     return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
                 continue
-        # split in four, pushed right to left so the leftmost piece is examined first
-        pf = fhi
-        pd = dhi
+        # split in four, pushed right to left so the leftmost piece is examined first. The
+        # inner points are left NaN, each evaluated when the piece ending there is examined
+        # (and passed to the next piece): a search that stops at a root never evaluates the
+        # points right of it.
         for i in range(3, -1, -1):
-            a_ = lo + ln * i / 4.0
-            b_ = lo + ln * (i + 1) / 4.0 if i < 3 else hi
-            if i > 0:
-                fa, da = ev(c, lam, nz, off, a_)
-            else:
-                fa = flo
-                da = dlo
-            stack[sp, 0] = a_
-            stack[sp, 1] = b_
-            stack[sp, 2] = fa
-            stack[sp, 3] = da
-            stack[sp, 4] = pf
-            stack[sp, 5] = pd
+            stack[sp, 0] = lo + ln * i / 4.0
+            stack[sp, 1] = lo + ln * (i + 1) / 4.0 if i < 3 else hi
+            stack[sp, 2] = flo if i == 0 else math.nan
+            stack[sp, 3] = dlo if i == 0 else math.nan
+            stack[sp, 4] = fhi if i == 3 else math.nan
+            stack[sp, 5] = dhi if i == 3 else math.nan
             sp += 1
-            pf = fa
-            pd = da
     return -1.0
 
 
@@ -220,7 +276,7 @@ def _ev_split(c, lam, nz, off, t, cut2):
     fs = off
     ds = 0.0
     for k in range(nz):
-        e = c[k] * cmath.exp(lam[k] * t)
+        e = c[k] * cexp(lam[k] * t)
         er = e.real
         dr = (e * lam[k]).real
         f += er
@@ -233,26 +289,24 @@ def _ev_split(c, lam, nz, off, t, cut2):
 
 
 @njit(cache=True, nogil=True)
-def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4):
+def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds0, f1, d1, fs1,
+                      ds1):  # fmt: skip
     """:func:`first_root` where a piece may also be proven clear by the Hermite cubic of the
     slow modes minus its error bound and minus the fast modes' size (Σ_fast |c_k|, which does
-    not shrink with the piece, but which their decay makes small once they are damped)."""
-    f0, _ = ev(c, lam, nz, off, t0)
-    if f0 <= 0.0:
-        return t0
+    not shrink with the piece, but which their decay makes small once they are damped). f and
+    ḟ at both ends are given, of the whole sum and of the slow modes (|λ| (t1 - t0) <= 4.43),
+    with f(t0) > 0."""
     total = t1 - t0
     cut2 = (4.43 / total) ** 2
     bfast = 0.0
     for k in range(nz):
         m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
-        a = abs(c[k])
+        a = cabs(c[k])
         w4[k] = a * m2 * m2
         if m2 > cut2:
             r = lam[k].real
             bfast += a * (1.0 if r <= 0.0 else math.exp(r * total))
             w4[k] = -w4[k]  # marks a fast mode for the slow bound
-    f0, d0, fs0, ds0 = _ev_split(c, lam, nz, off, t0, cut2)
-    f1, d1, fs1, ds1 = _ev_split(c, lam, nz, off, t1, cut2)
     tiny = 1e-9 * total
     stack[0, 0] = t0
     stack[0, 1] = t1
@@ -271,10 +325,19 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4):
         hi = stack[sp, 1]
         flo = stack[sp, 2]
         dlo = stack[sp, 3]
-        fhi = stack[sp, 4]
-        dhi = stack[sp, 5]
         if flo <= 0.0:
             return lo
+        fhi = stack[sp, 4]
+        dhi = stack[sp, 5]
+        if math.isnan(fhi):  # as in _first_root_plain
+            fhi, dhi, sfh, sdh = _ev_split(c, lam, nz, off, hi, cut2)
+            stack[sp, 8] = sfh
+            stack[sp, 9] = sdh
+            if sp > 0:
+                stack[sp - 1, 2] = fhi
+                stack[sp - 1, 3] = dhi
+                stack[sp - 1, 6] = sfh
+                stack[sp - 1, 7] = sdh
         ln = hi - lo
         if fhi <= 0.0:
             if ln <= 0.0625 * total or sp >= STACK - 5:
@@ -302,52 +365,39 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4):
                 if fc <= 0.0:
                     return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
                 continue
-        pf = fhi
-        pd = dhi
-        psf = stack[sp, 8]
-        psd = stack[sp, 9]
         lsf = stack[sp, 6]
         lsd = stack[sp, 7]
-        for i in range(3, -1, -1):
-            a_ = lo + ln * i / 4.0
-            b_ = lo + ln * (i + 1) / 4.0 if i < 3 else hi
-            if i > 0:
-                fa, da, sfa, sda = _ev_split(c, lam, nz, off, a_, cut2)
-            else:
-                fa = flo
-                da = dlo
-                sfa = lsf
-                sda = lsd
-            stack[sp, 0] = a_
-            stack[sp, 1] = b_
-            stack[sp, 2] = fa
-            stack[sp, 3] = da
-            stack[sp, 4] = pf
-            stack[sp, 5] = pd
-            stack[sp, 6] = sfa
-            stack[sp, 7] = sda
-            stack[sp, 8] = psf
-            stack[sp, 9] = psd
+        hsf = stack[sp, 8]
+        hsd = stack[sp, 9]
+        for i in range(3, -1, -1):  # the inner points left NaN, as in _first_root_plain
+            stack[sp, 0] = lo + ln * i / 4.0
+            stack[sp, 1] = lo + ln * (i + 1) / 4.0 if i < 3 else hi
+            stack[sp, 2] = flo if i == 0 else math.nan
+            stack[sp, 3] = dlo if i == 0 else math.nan
+            stack[sp, 4] = fhi if i == 3 else math.nan
+            stack[sp, 5] = dhi if i == 3 else math.nan
+            stack[sp, 6] = lsf if i == 0 else math.nan
+            stack[sp, 7] = lsd if i == 0 else math.nan
+            stack[sp, 8] = hsf if i == 3 else math.nan
+            stack[sp, 9] = hsd if i == 3 else math.nan
             sp += 1
-            pf = fa
-            pd = da
-            psf = sfa
-            psd = sda
     return -1.0
 
 
 @njit(cache=True, nogil=True)
-def clear_whole(c, lam, E, nz, off, ln):
-    """True if f > 0 on [0, ln] is proven, with ``E = e^{λ·ln}`` given (no exponentials
-    evaluated): by the Hermite cubic of the whole sum and its error bound, or by that of the
-    slow modes with the fast modes (|λ| ln > 4.43) bounded by their size."""
-    f0 = off
+def clear_sums(c, lam, E, nz, ln):
+    """What :func:`clear_test` needs of the sum ``Re Σ c_k e^{λ_k t}`` on [0, ln], with
+    ``E = e^{λ·ln}`` given (no exponentials evaluated but growing modes' size): its value and
+    slope at both ends, of the whole sum and of its slow modes (|λ| ln <= 4.43), the error
+    bound weights of both, and the size of the fast modes. Negating c negates the first eight
+    and keeps the rest, so both stops of a gap share one call."""
+    f0 = 0.0
     d0 = 0.0
-    f1 = off
+    f1 = 0.0
     d1 = 0.0
-    fs0 = off
+    fs0 = 0.0
     ds0 = 0.0
-    fs1 = off
+    fs1 = 0.0
     ds1 = 0.0
     acc = 0.0
     acc_s = 0.0
@@ -366,7 +416,7 @@ def clear_whole(c, lam, E, nz, off, ln):
         d1 += b1
         m2 = lam[k].real * lam[k].real + lam[k].imag * lam[k].imag
         grow = 1.0 if lam[k].real <= 0.0 else math.exp(lam[k].real * ln)
-        w = abs(c[k]) * grow
+        w = cabs(c[k]) * grow
         acc += w * m2 * m2
         if m2 > cut2:
             bfast += w
@@ -376,16 +426,35 @@ def clear_whole(c, lam, E, nz, off, ln):
             fs1 += a1
             ds1 += b1
             acc_s += w * m2 * m2
+    return f0, d0, f1, d1, fs0, ds0, fs1, ds1, acc, acc_s, bfast
+
+
+@njit(cache=True, nogil=True)
+def clear_test(sums, off, sgn, ln):
+    """True if ``off + sgn·Re Σ c_k e^{λ_k t} > 0`` on [0, ln] is proven from
+    ``sums = clear_sums(c, …)``: by the Hermite cubic of the whole sum and its error bound, or
+    by that of the slow modes with the fast modes bounded by their size."""
+    f0, d0, f1, d1, fs0, ds0, fs1, ds1, acc, acc_s, bfast = sums
+    f0 = off + sgn * f0
+    f1 = off + sgn * f1
     if f0 <= 0.0 or f1 <= 0.0:
         return False
     l4 = ln * ln * ln * ln / 384.0
-    fmin, _, _, _ = cubic_minmax(f0, d0, f1, d1, ln)
+    fmin, _, _, _ = cubic_minmax(f0, sgn * d0, f1, sgn * d1, ln)
     if fmin - acc * l4 > 0.0:
         return True
     if bfast == 0.0:
         return False
-    smin, _, _, _ = cubic_minmax(fs0, ds0, fs1, ds1, ln)
+    smin, _, _, _ = cubic_minmax(off + sgn * fs0, sgn * ds0, off + sgn * fs1, sgn * ds1, ln)
     return smin - acc_s * l4 - bfast > 0.0
+
+
+@njit(cache=True, nogil=True)
+def clear_whole(c, lam, E, nz, off, ln):
+    """True if f > 0 on [0, ln] is proven, with ``E = e^{λ·ln}`` given (no exponentials
+    evaluated): by the Hermite cubic of the whole sum and its error bound, or by that of the
+    slow modes with the fast modes (|λ| ln > 4.43) bounded by their size."""
+    return clear_test(clear_sums(c, lam, E, nz, ln), off, 1.0, ln)
 
 
 @njit(cache=True, nogil=True)
@@ -419,6 +488,6 @@ def skip_start(c, lam, nz, off, h):
 def phi1(x, ln):
     """(e^{x·ln} - 1)/x, stable for small x·ln."""
     z = x * ln
-    if abs(z) < 1e-3:
+    if z.real * z.real + z.imag * z.imag < 1e-6:  # |z| < 1e-3 without a hypot
         return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
-    return (cmath.exp(z) - 1.0) / x
+    return (cexp(z) - 1.0) / x
