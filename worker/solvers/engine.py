@@ -50,6 +50,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from worker.model import SteadyState, System
 from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittance_db
@@ -168,6 +169,43 @@ def mser_stats(y: np.ndarray) -> tuple[float, float | None, int, float]:
 # --------------------------------------------------------------------------- windows
 
 
+@njit(cache=True, nogil=True)
+def _fold_rows(rows: np.ndarray, cur: np.ndarray, count: int) -> bool:
+    """Fold a batch of period rows into the open window's aggregate ``cur`` (``count`` periods
+    in it so far); whether every row was measured. Compiled: a dozen numpy calls per batch
+    cost ~5 % of a point."""
+    measured = True
+    for i in range(rows.shape[0]):
+        cur[ms.M_SMAX] = max(cur[ms.M_SMAX], rows[i, ms.M_SMAX])
+        cur[ms.M_SMIN] = min(cur[ms.M_SMIN], rows[i, ms.M_SMIN])
+        for j in range(ms.M_S_RE, ms.M_IMP2 + 1):
+            cur[j] += rows[i, j]
+        cur[ms.M_PEAK] = max(cur[ms.M_PEAK], rows[i, ms.M_PEAK])
+        if rows[i, ms.M_LAST_IMPACT] >= 0.0:
+            cur[ms.M_LAST_IMPACT] = count + i + rows[i, ms.M_LAST_IMPACT]
+        measured = measured and rows[i, ms.M_MEASURED] != 0.0
+    return measured
+
+
+@njit(cache=True, nogil=True)
+def _push_recent(recent: np.ndarray, imp: np.ndarray, reg: np.ndarray, rows: np.ndarray,
+                 samples: np.ndarray) -> None:  # fmt: skip
+    """Append a batch's stroboscopic samples, impacts and end regimes to the newest-last
+    buffers (the oldest drop out)."""
+    n = rows.shape[0]
+    size = recent.shape[0]
+    k = min(n, size)
+    for i in range(size - k):
+        recent[i] = recent[i + k]
+        imp[i] = imp[i + k]
+        reg[i] = reg[i + k]
+    for i in range(k):
+        src = n - k + i
+        recent[size - k + i] = samples[src]
+        imp[size - k + i] = rows[src, ms.M_IMP1] + rows[src, ms.M_IMP2]
+        reg[size - k + i] = rows[src, ms.M_REGIME]
+
+
 @dataclass
 class _Windows:
     """Per-window aggregates of the period rows (the irregular statistics)."""
@@ -198,15 +236,7 @@ class _Windows:
         """Add a batch of period rows (a batch never crosses a window boundary)."""
         if not len(rows):
             return
-        c = self.cur
-        c[ms.M_SMAX] = max(c[ms.M_SMAX], rows[:, ms.M_SMAX].max())
-        c[ms.M_SMIN] = min(c[ms.M_SMIN], rows[:, ms.M_SMIN].min())
-        c[ms.M_S_RE : ms.M_IMP2 + 1] += rows[:, ms.M_S_RE : ms.M_IMP2 + 1].sum(axis=0)
-        c[ms.M_PEAK] = max(c[ms.M_PEAK], rows[:, ms.M_PEAK].max())
-        hit = np.flatnonzero(rows[:, ms.M_LAST_IMPACT] >= 0.0)
-        if hit.size:
-            c[ms.M_LAST_IMPACT] = self.count + hit[-1] + rows[hit[-1], ms.M_LAST_IMPACT]
-        self.all_measured &= bool(rows[:, ms.M_MEASURED].all())
+        self.all_measured &= bool(_fold_rows(rows, self.cur, self.count))
         self.count += len(rows)
         if self.count >= self.window:
             self._close(base_scale)
@@ -274,21 +304,15 @@ class _Engine:
 
     def _absorb(self, rows: np.ndarray, samples: np.ndarray, main: bool) -> None:
         n = len(rows)
+        steps, contact, coarse = rows[:, ms.M_STEPS : ms.M_COARSE + 1].sum(axis=0)
         self.work["periods"] += n
-        self.work["steps"] += int(rows[:, ms.M_STEPS].sum())
-        self.work["contact_steps"] += int(rows[:, ms.M_CONTACT].sum())
-        self.work["coarse_steps"] += int(rows[:, ms.M_COARSE].sum())
+        self.work["steps"] += int(steps)
+        self.work["contact_steps"] += int(contact)
+        self.work["coarse_steps"] += int(coarse)
         if not main or n == 0:
             return
         self.windows.add(rows, self.p.base_scale)
-        k = min(n, RECENT)
-        for arr, new in (
-            (self.recent, samples[n - k :]),
-            (self.recent_imp, rows[n - k :, ms.M_IMP1] + rows[n - k :, ms.M_IMP2]),
-            (self.recent_reg, rows[n - k :, ms.M_REGIME]),
-        ):
-            arr[: RECENT - k] = arr[k:]
-            arr[RECENT - k :] = new
+        _push_recent(self.recent, self.recent_imp, self.recent_reg, rows, samples)
         self.nrecent = min(RECENT, self.nrecent + n)
         self.period += n
 
