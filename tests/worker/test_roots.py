@@ -21,11 +21,13 @@ from worker.solvers.event.roots import (
     clear_test,
     clear_whole,
     first_root,
+    first_root_end,
     first_root_whole,
     phi1,
     refine,
     skip_start,
 )
+from worker.solvers.measure import cubic_minmax, hermite_hull
 
 
 def f_ref(c: np.ndarray, lam: np.ndarray, off: float, t: np.ndarray) -> np.ndarray:
@@ -230,3 +232,68 @@ def test_first_root_whole_is_first_root_with_the_end_exponentials_given(stiff):
         stack = np.zeros((STACK, STACK_COLS))
         got = first_root_whole(c, lam, E, len(c), off, ln, 1e-13, stack, np.zeros(len(c)))
         assert got == pytest.approx(want, abs=1e-12 * ln)
+
+
+def test_cexp_on_the_axes_is_the_general_formula_bit_for_bit():
+    # the forcing mode (λ = iγ) and a stuck regime's λ = 0 skip the exponential or the sine
+    # and cosine; the value must be what e^{Re z}·(cos Im z, sin Im z) gives, signed zeros too
+    rng = np.random.default_rng(37)
+    zs = [complex(0.0, y) for y in rng.normal(scale=30.0, size=500)]
+    zs += [complex(x, 0.0) for x in rng.normal(scale=30.0, size=500)]
+    zs += [complex(x, -0.0) for x in rng.normal(scale=3.0, size=50)]
+    zs += [complex(-0.0, y) for y in rng.normal(scale=3.0, size=50)]
+    zs += [0j, complex(-0.0, -0.0), complex(0.0, -0.0), complex(-0.0, 0.0)]
+    for z in zs:
+        r = math.exp(z.real)
+        want = complex(r * math.cos(z.imag), r * math.sin(z.imag))
+        got = cexp(z)
+        assert got == want
+        assert math.copysign(1.0, got.imag) == math.copysign(1.0, want.imag)
+
+
+def test_skip_start_with_curvature_tries_the_round_off_time_first():
+    # f = 0.5 + 0.5 - cos t (a λ = 0 mode, as in a stuck regime): f(0) = ḟ(0) = 0, f̈(0) = 1,
+    # so the first try is twice the t at which t²/2 reaches 1e-12 of the scale Σ|c| + |off| = 2
+    c = np.array([-1.0 + 0j, 0.5 + 0j])
+    lam = np.array([1j, 0j])
+    t = skip_start(c, lam, 2, 0.5, 0.5)
+    assert t == pytest.approx(2.0 * math.sqrt(2.0 * 2e-12), rel=1e-12)
+
+
+@pytest.mark.parametrize("stiff", [False, True])
+def test_first_root_end_is_first_root_bit_for_bit(stiff):
+    # the search from a late start t0 to the interval's end, with e^{λ·t1} given as cexp gives
+    # it: the same answer to the last bit (the end's f and ḟ are the same sums)
+    rng = np.random.default_rng(41 + stiff)
+    found = 0
+    for _ in range(300):
+        c, lam, off = random_sum(rng, 3)
+        if stiff:
+            c = np.append(c, 2e-3 * (rng.normal() + 1j * rng.normal()))
+            lam = np.append(lam, -rng.uniform(0.0, 2.0) + 1j * rng.uniform(150.0, 250.0))
+        t1 = float(rng.uniform(0.05, 4.0))
+        t0 = float(rng.uniform(0.0, 0.5)) * t1
+        E = np.array([cexp(complex(x) * t1) for x in lam])
+        want = call_first_root(c, lam, off, t0, t1)
+        stack = np.zeros((STACK, STACK_COLS))
+        got = first_root_end(c, lam, E, len(c), off, t0, t1, 1e-13, stack, np.zeros(len(c)))
+        assert got == want
+        found += want >= 0.0
+    assert 0 < found < 300
+
+
+def test_hermite_hull_holds_the_cubics_rounded_extrema():
+    # a test passed on the hull must pass on the cubic: its computed min and max lie inside,
+    # also where an extremum sits at an end or the slopes nearly vanish
+    rng = np.random.default_rng(43)
+    for _ in range(20_000):
+        f0, f1 = rng.normal(size=2) * 10.0 ** rng.uniform(-3, 3)
+        d0, d1 = rng.normal(size=2) * 10.0 ** rng.uniform(-6, 3, size=2)
+        if rng.uniform() < 0.2:
+            d0 *= 1e-16
+        if rng.uniform() < 0.2:
+            f1 = f0 * (1.0 + 1e-16 * rng.normal())
+        ln = 10.0 ** rng.uniform(-6, 1)
+        fmin, _, fmax, _ = cubic_minmax(f0, d0, f1, d1, ln)
+        lo, hi = hermite_hull(f0, d0, f1, d1, ln)
+        assert lo <= fmin and fmax <= hi

@@ -163,6 +163,22 @@ def cubic_minmax(f0, d0, f1, d1, ln):
     return fmin, tmin, fmax, tmax
 
 
+@njit(cache=True, nogil=True)
+def hermite_hull(f0, d0, f1, d1, ln):
+    """(lo, hi) enclosing :func:`cubic_minmax`'s min and max without its square root and
+    divisions: the cubic is a convex combination of its Bernstein control points f0,
+    f0 + d0·ln/3, f1 - d1·ln/3, f1, whose range, widened by 1e-13 of their size (more than the
+    rounding of the cubic's value at its extrema), holds both. A test that the cubic stays on
+    one side of a level that passes on the hull passes on the cubic too, so it may be tried
+    first."""
+    e0 = d0 * ln / 3.0
+    e1 = d1 * ln / 3.0
+    b1 = f0 + e0
+    b2 = f1 - e1
+    w = 1e-13 * (abs(f0) + abs(f1) + abs(e0) + abs(e1))
+    return min(min(f0, f1), min(b1, b2)) - w, max(max(f0, f1), max(b1, b2)) + w
+
+
 @njit(cache=True, nogil=True, inline="always")
 def add_extrema(rows, k, lo, hi):
     """Widen the period's range of s to [lo, hi]."""

@@ -189,27 +189,38 @@ def _measure_interval(r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, 
         sc = _extremum(r, a, nk[r], lam, RV, h, sd0, sd1, tol_t, cw)
         lo = min(lo, sc)
         hi = max(hi, sc)
-    z0r = 0.0
-    z0i = 0.0
-    z1r = 0.0
-    z1i = 0.0
+    # all twelve sums in one pass: each is still accumulated in index order (the same bits),
+    # but twelve independent chains keep the adder busy where one or four wait on its latency
+    z0r = z0i = z1r = z1i = 0.0
+    v0 = v1 = v2 = v3 = 0.0
+    q0 = q1 = q2 = q3 = 0.0
     for i in range(nz):
-        z0r += psi[r, 0, i].real * y[i]
-        z0i += psi[r, 0, i].imag * y[i]
-        z1r += psi[r, 1, i].real * y[i]
-        z1i += psi[r, 1, i].imag * y[i]
+        yi = y[i]
+        z0r += psi[r, 0, i].real * yi
+        z0i += psi[r, 0, i].imag * yi
+        z1r += psi[r, 1, i].real * yi
+        z1i += psi[r, 1, i].imag * yi
+        v0 += gl[r, 0, 0, i] * yi
+        q0 += gl[r, 0, 1, i] * yi
+        v1 += gl[r, 1, 0, i] * yi
+        q1 += gl[r, 1, 1, i] * yi
+        v2 += gl[r, 2, 0, i] * yi
+        q2 += gl[r, 2, 1, i] * yi
+        v3 += gl[r, 3, 0, i] * yi
+        q3 += gl[r, 3, 1, i] * yi
     a0, a1 = _phase_rot(z0r, z0i, ph0)
     b0, b1 = _phase_rot(z1r, z1i, ph0)
+    w = ms.GL_WEIGHTS
     vv = 0.0
+    vv += w[0] * v0 * v0
+    vv += w[1] * v1 * v1
+    vv += w[2] * v2 * v2
+    vv += w[3] * v3 * v3
     vb = 0.0
-    for j in range(4):
-        v = 0.0
-        b = 0.0
-        for i in range(nz):
-            v += gl[r, j, 0, i] * y[i]
-            b += gl[r, j, 1, i] * y[i]
-        vv += ms.GL_WEIGHTS[j] * v * v
-        vb += ms.GL_WEIGHTS[j] * b * v
+    vb += w[0] * q0 * v0
+    vb += w[1] * q1 * v1
+    vb += w[2] * q2 * v2
+    vb += w[3] * q3 * v3
     return lo, hi, a0, a1, b0, b1, h * vv, h * vb
 
 
@@ -304,7 +315,13 @@ def _measure_piece(r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r, 
 @njit(cache=True, nogil=True)
 def _opened(contact, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
     """The contact episode state after a free piece: it ends once the gap of its stop has
-    opened to ``OPEN_FRAC`` of the clearance (exact maximum of the gap over the piece)."""
+    opened to ``OPEN_FRAC`` of the clearance (exact maximum of the gap over the piece).
+
+    The exact maximum (Newton on the gap's slope, which near the round-off floor falls back to
+    tens of bisections) is sought only where the ends and the gap's Hermite cubic leave it in
+    doubt: not where the gap falls, then rises (its maximum is at an end), nor where the cubic
+    plus its error bound stays below the threshold, nor where the gap at the cubic's maximum is
+    above it."""
     sgn = -1.0 if contact == 1 else 1.0
     gk = g1 if contact == 1 else g2
     thr = ms.OPEN_FRAC * gk
@@ -317,9 +334,26 @@ def _opened(contact, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
     _, _, fmax, tmax = ms.cubic_minmax(f0, d0, f1, d1, ln)
     if fmax <= 0.5 * thr:
         return contact
+    if d0 < 0.0 <= d1:
+        # falling, then rising: the maximum is at an end, and neither is above the threshold
+        # (the slope's root in between is a minimum, which the search below would locate)
+        return contact
     if not have_a:
         _modal(Vi, 0, y, nk[0], nz, a)
     _coef(RV, 0, R_W, a, nk[0], sgn, cw)
+    scale = gk
+    bnd = 0.0
+    for k in range(nk[0]):
+        lk = lam[0, k]
+        m2 = lk.real * lk.real + lk.imag * lk.imag
+        ak = rt.cabs(cw[k])
+        scale += ak
+        bnd += ak * m2 * m2 * (1.0 if lk.real <= 0.0 else math.exp(lk.real * ln))
+    if fmax + bnd * ln * ln * ln * ln / 384.0 + 1e-12 * scale < thr:
+        return contact  # the gap stays below the threshold over the whole piece
+    fm, _ = rt.ev(cw, lam[0], nk[0], gk, tmax)
+    if fm > thr + 1e-12 * scale:
+        return 0  # above it at one point: the maximum is too
     tc = rt.crit(cw, lam[0], nk[0], 0.0, ln, d0, d1, tmax)
     fc, _ = rt.ev(cw, lam[0], nk[0], gk, tc)
     return 0 if fc > thr else contact
@@ -533,15 +567,21 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         d0 = _row(R, 0, R_WD, y, nz)
                         w1 = _row(R, 0, R_W, ye, nz)
                         d1 = _row(R, 0, R_WD, ye, nz)
-                        wmin, _, wmax, _ = ms.cubic_minmax(w0, d0, w1, d1, h)
                         bnd = (
                             2.0
                             * h**4
                             / 384.0
                             * (abs(_row(R, 0, R_W4, y, nz)) + abs(_row(R, 0, R_W4, ye, nz)))
                         )
+                        # the cubic's hull first: where it passes the cubic passes too, and
+                        # most intervals of free flight pass it
+                        wmin, wmax = ms.hermite_hull(w0, d0, w1, d1, h)
                         quick = (wmax + bnd < g1 * (1.0 - margin)
                                  and wmin - bnd > -g2 * (1.0 - margin))  # fmt: skip
+                        if not quick:
+                            wmin, _, wmax, _ = ms.cubic_minmax(w0, d0, w1, d1, h)
+                            quick = (wmax + bnd < g1 * (1.0 - margin)
+                                     and wmin - bnd > -g2 * (1.0 - margin))  # fmt: skip
                     elif bilateral:
                         quick = True
                     else:
@@ -550,14 +590,17 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         e0 = sgn * _row(R, r, R_MUD, y, nz)
                         l1 = sgn * _row(R, r, R_MU, ye, nz)
                         e1 = sgn * _row(R, r, R_MUD, ye, nz)
-                        lmin, _, _, _ = ms.cubic_minmax(l0, e0, l1, e1, h)
                         bnd = (
                             2.0
                             * h**4
                             / 384.0
                             * (abs(_row(R, r, R_MU4, y, nz)) + abs(_row(R, r, R_MU4, ye, nz)))
                         )
+                        lmin, _ = ms.hermite_hull(l0, e0, l1, e1, h)  # as in free flight
                         quick = lmin - bnd > margin * max(l0, l1)
+                        if not quick:
+                            lmin, _, _, _ = ms.cubic_minmax(l0, e0, l1, e1, h)
+                            quick = lmin - bnd > margin * max(l0, l1)
                     if quick:
                         if measure:
                             lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_interval(
@@ -633,6 +676,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                                 continue
                             te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t, stack,
                                                      w4)  # fmt: skip
+                        elif lim == ln and not have_ye:  # Ew = cexp(λ ln): reuse it
+                            te = rt.first_root_end(cc, lam[0], Ew, nkr, gk, ts, ln, tol_t, stack,
+                                                   w4)  # fmt: skip
                         else:
                             te = rt.first_root(cc, lam[0], nkr, gk, ts, lim, tol_t, stack, w4)
                         if te >= 0.0 and (t_ev < 0.0 or te < t_ev):
@@ -647,6 +693,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         if not rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln):
                             te = rt.first_root_whole(c1, lam[r], Ew, nkr, 0.0, ln, tol_t, stack,
                                                      w4)  # fmt: skip
+                    elif ts < ln and not have_ye:
+                        te = rt.first_root_end(c1, lam[r], Ew, nkr, 0.0, ts, ln, tol_t, stack, w4)
                     elif ts < ln:
                         te = rt.first_root(c1, lam[r], nkr, 0.0, ts, ln, tol_t, stack, w4)
                     if te >= 0.0:

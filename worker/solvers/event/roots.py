@@ -19,7 +19,7 @@ import math
 
 from numba import njit
 
-from worker.solvers.measure import cubic_minmax
+from worker.solvers.measure import cubic_minmax, hermite_hull
 
 STACK = 160  # pieces the search may hold (depth ~ 4 per level)
 STACK_COLS = 10  # lo, hi, f and ḟ at both ends, the slow modes' f and ḟ at both ends
@@ -29,8 +29,17 @@ STIFF = 20.0  # |λ|·length beyond which a mode counts as stiff over a search i
 @njit(cache=True, nogil=True)
 def cexp(z):
     """e^z of a finite z: ``cmath.exp`` without its branches for infinite and NaN parts (the
-    same value; the search never sees those, the kernel ends a run on a non-finite state)."""
+    same value; the search never sees those, the kernel ends a run on a non-finite state).
+
+    Every regime has a mode on the imaginary axis (the forcing oscillator, λ = iγ) and a stuck
+    one a mode at λ = 0: there the exponential or the sine and cosine (~25 % and ~75 % of the
+    cost) are skipped. Bit for bit the same value: e^{±0} = 1, cos(±0) = 1 and
+    sin(±0)·r = r·(±0)."""
+    if z.real == 0.0:
+        return complex(math.cos(z.imag), math.sin(z.imag))
     r = math.exp(z.real)
+    if z.imag == 0.0:
+        return complex(r, r * z.imag)
     return complex(r * math.cos(z.imag), r * math.sin(z.imag))
 
 
@@ -170,6 +179,41 @@ def first_root(c, lam, nz, off, t0, t1, tol_t, stack, w4):
 
 
 @njit(cache=True, nogil=True)
+def first_root_end(c, lam, E, nz, off, t0, t1, tol_t, stack, w4):
+    """:func:`first_root` on [t0, t1] with ``E = e^{λ·t1}`` given (the same values as
+    ``cexp(λ·t1)``): the end t1 costs no exponentials, the same f and ḟ bit for bit."""
+    total = t1 - t0
+    if _stiff(c, lam, nz, total):
+        cut2 = (4.43 / total) ** 2
+        f0, d0, fs0, ds0 = _ev_split(c, lam, nz, off, t0, cut2)
+        if f0 <= 0.0:
+            return t0
+        f1 = fs1 = off
+        d1 = ds1 = 0.0
+        for k in range(nz):  # as _ev_split at t1
+            e = c[k] * E[k]
+            er = e.real
+            dr = (e * lam[k]).real
+            f1 += er
+            d1 += dr
+            if lam[k].real * lam[k].real + lam[k].imag * lam[k].imag <= cut2:
+                fs1 += er
+                ds1 += dr
+        return _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds0,
+                                 f1, d1, fs1, ds1)  # fmt: skip
+    f0, d0 = ev(c, lam, nz, off, t0)
+    if f0 <= 0.0:
+        return t0
+    f1 = off
+    d1 = 0.0
+    for k in range(nz):  # as ev at t1
+        e = c[k] * E[k]
+        f1 += e.real
+        d1 += (e * lam[k]).real
+    return _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
+
+
+@njit(cache=True, nogil=True)
 def first_root_whole(c, lam, E, nz, off, ln, tol_t, stack, w4):
     """:func:`first_root` on [0, ln] with ``E = e^{λ·ln}`` given: the ends cost no
     exponentials."""
@@ -244,8 +288,11 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
             if ln <= 0.0625 * total or sp >= STACK - 5:
                 return refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t)
         else:
+            bnd = bound4(w4, lam, nz, lo, hi)
+            if hermite_hull(flo, dlo, fhi, dhi, ln)[0] - bnd > 0.0:
+                continue  # clear on the cubic's hull: clear on the cubic (the same decision)
             fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
-            if fmin - bound4(w4, lam, nz, lo, hi) > 0.0:
+            if fmin - bnd > 0.0:
                 continue
             if ln <= tiny or sp >= STACK - 5:
                 tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
@@ -343,7 +390,6 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
             if ln <= 0.0625 * total or sp >= STACK - 5:
                 return refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t)
         else:
-            fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
             full = 0.0
             slow = 0.0
             for k in range(nz):
@@ -353,10 +399,18 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
                 if w4[k] >= 0.0:
                     slow += w4[k] * g
             l4 = ln * ln * ln * ln / 384.0
+            if hermite_hull(flo, dlo, fhi, dhi, ln)[0] - full * l4 > 0.0:
+                continue  # as in _first_root_plain
+            fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
             if fmin - full * l4 > 0.0:
                 continue
-            smin, _, _, _ = cubic_minmax(stack[sp, 6], stack[sp, 7], stack[sp, 8],
-                                         stack[sp, 9], ln)  # fmt: skip
+            sf0 = stack[sp, 6]
+            sd0 = stack[sp, 7]
+            sf1 = stack[sp, 8]
+            sd1 = stack[sp, 9]
+            if hermite_hull(sf0, sd0, sf1, sd1, ln)[0] - slow * l4 - bfast > 0.0:
+                continue
+            smin, _, _, _ = cubic_minmax(sf0, sd0, sf1, sd1, ln)
             if smin - slow * l4 - bfast > 0.0:
                 continue
             if ln <= tiny or sp >= STACK - 5:
@@ -440,12 +494,19 @@ def clear_test(sums, off, sgn, ln):
     if f0 <= 0.0 or f1 <= 0.0:
         return False
     l4 = ln * ln * ln * ln / 384.0
+    # each test on the cubic's hull first (where it passes, the cubic passes too)
+    if hermite_hull(f0, sgn * d0, f1, sgn * d1, ln)[0] - acc * l4 > 0.0:
+        return True
     fmin, _, _, _ = cubic_minmax(f0, sgn * d0, f1, sgn * d1, ln)
     if fmin - acc * l4 > 0.0:
         return True
     if bfast == 0.0:
         return False
-    smin, _, _, _ = cubic_minmax(off + sgn * fs0, sgn * ds0, off + sgn * fs1, sgn * ds1, ln)
+    s0 = off + sgn * fs0
+    s1 = off + sgn * fs1
+    if hermite_hull(s0, sgn * ds0, s1, sgn * ds1, ln)[0] - acc_s * l4 - bfast > 0.0:
+        return True
+    smin, _, _, _ = cubic_minmax(s0, sgn * ds0, s1, sgn * ds1, ln)
     return smin - acc_s * l4 - bfast > 0.0
 
 
@@ -469,7 +530,9 @@ def skip_start(c, lam, nz, off, h):
         scale += abs(c[k])
     eps = 1e-12 * scale
     tmin = h * 8.0**-13
-    _, dd = ev2(c, lam, nz, 0.0)
+    dd = 0.0  # f''(0), as ev2 at t = 0 without its exponentials (e^0 = 1)
+    for k in range(nz):
+        dd += (c[k] * lam[k] * lam[k]).real
     if dd > 0.0:
         t = min(max(2.0 * math.sqrt(2.0 * eps / dd), tmin), h)
         f, _ = ev(c, lam, nz, off, t)
