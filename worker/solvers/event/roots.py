@@ -254,6 +254,23 @@ def _stiff(c, lam, nz, total):
 
 
 @njit(cache=True, nogil=True)
+def _push_quarters(stack, sp, lo, hi, ln, flo, dlo, fhi, dhi):
+    """Push ``[lo, hi]`` (``ln = hi - lo``) split in four, right to left so the leftmost piece
+    is examined first; returns the new stack top. The inner points are left NaN, each evaluated
+    when the piece ending there is examined (and passed to the next piece): a search that stops
+    at a root never evaluates the points right of it."""
+    for i in range(3, -1, -1):
+        stack[sp, 0] = lo + ln * i / 4.0
+        stack[sp, 1] = lo + ln * (i + 1) / 4.0 if i < 3 else hi
+        stack[sp, 2] = flo if i == 0 else math.nan
+        stack[sp, 3] = dlo if i == 0 else math.nan
+        stack[sp, 4] = fhi if i == 3 else math.nan
+        stack[sp, 5] = dhi if i == 3 else math.nan
+        sp += 1
+    return sp
+
+
+@njit(cache=True, nogil=True)
 def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1):
     """:func:`first_root` with the Hermite cubic of the whole sum and its error bound (f and
     ḟ at both ends given, f(t0) > 0)."""
@@ -300,18 +317,7 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
                 if fc <= 0.0:
                     return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
                 continue
-        # split in four, pushed right to left so the leftmost piece is examined first. The
-        # inner points are left NaN, each evaluated when the piece ending there is examined
-        # (and passed to the next piece): a search that stops at a root never evaluates the
-        # points right of it.
-        for i in range(3, -1, -1):
-            stack[sp, 0] = lo + ln * i / 4.0
-            stack[sp, 1] = lo + ln * (i + 1) / 4.0 if i < 3 else hi
-            stack[sp, 2] = flo if i == 0 else math.nan
-            stack[sp, 3] = dlo if i == 0 else math.nan
-            stack[sp, 4] = fhi if i == 3 else math.nan
-            stack[sp, 5] = dhi if i == 3 else math.nan
-            sp += 1
+        sp = _push_quarters(stack, sp, lo, hi, ln, flo, dlo, fhi, dhi)
     return -1.0
 
 
@@ -423,18 +429,14 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
         lsd = stack[sp, 7]
         hsf = stack[sp, 8]
         hsd = stack[sp, 9]
-        for i in range(3, -1, -1):  # the inner points left NaN, as in _first_root_plain
-            stack[sp, 0] = lo + ln * i / 4.0
-            stack[sp, 1] = lo + ln * (i + 1) / 4.0 if i < 3 else hi
-            stack[sp, 2] = flo if i == 0 else math.nan
-            stack[sp, 3] = dlo if i == 0 else math.nan
-            stack[sp, 4] = fhi if i == 3 else math.nan
-            stack[sp, 5] = dhi if i == 3 else math.nan
-            stack[sp, 6] = lsf if i == 0 else math.nan
-            stack[sp, 7] = lsd if i == 0 else math.nan
-            stack[sp, 8] = hsf if i == 3 else math.nan
-            stack[sp, 9] = hsd if i == 3 else math.nan
-            sp += 1
+        top = _push_quarters(stack, sp, lo, hi, ln, flo, dlo, fhi, dhi)
+        for i in range(4):  # the slow modes' values at the ends alike (piece i in row top-1-i)
+            row = top - 1 - i
+            stack[row, 6] = lsf if i == 0 else math.nan
+            stack[row, 7] = lsd if i == 0 else math.nan
+            stack[row, 8] = hsf if i == 3 else math.nan
+            stack[row, 9] = hsd if i == 3 else math.nan
+        sp = top
     return -1.0
 
 
