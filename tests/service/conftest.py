@@ -10,6 +10,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from fastapi.testclient import TestClient
+
+from service.api.app import create_app
+from service.api.settings import Settings
+from tests.service.helpers import API_TOKEN
 
 
 @pytest.fixture(scope="session")
@@ -52,3 +57,12 @@ def catalogue_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[st
         conn.execute(text("DROP TABLE IF EXISTS alembic_version"))
     engine.dispose()
     yield url
+
+
+@pytest.fixture
+def token_client(tmp_path: Path) -> Iterator[TestClient]:
+    """An in-process app with the bearer token ``API_TOKEN`` and no job runner."""
+    s = Settings(data_dir=tmp_path / "data", database_url=f"sqlite:///{tmp_path / 'c.sqlite'}",
+                 api_token=API_TOKEN)  # fmt: skip
+    with TestClient(create_app(s, run_jobs=False)) as client:
+        yield client

@@ -19,6 +19,7 @@ import xarray as xr
 from service.api.server import free_port
 
 __all__ = [
+    "API_TOKEN",
     "FAST_SOLVER",
     "SLOW_SOLVER",
     "Server",
@@ -29,6 +30,9 @@ __all__ = [
     "tiny_study",
     "write_suite",
 ]
+
+#: The bearer token of the token-protected test app (conftest fixture ``token_client``).
+API_TOKEN = "s3cret"
 
 # A coarse, fast solver: these tests check the service, not the numbers (tests/worker do that).
 FAST_SOLVER = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}

@@ -4,7 +4,6 @@ service itself (works offline), and exactly the open routes the README lists."""
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -12,22 +11,19 @@ import pytest
 from fastapi.testclient import TestClient
 from starlette.routing import BaseRoute, Mount
 
-from service.api.app import OPEN_ROUTES, create_app
-from service.api.settings import Settings
+from service.api.app import OPEN_ROUTES
+from tests.service.helpers import API_TOKEN
 
 README = Path(__file__).resolve().parents[3] / "README.md"
-TOKEN = "s3cret"
+TOKEN = API_TOKEN
 # A value for every path parameter a route may have (a well-formed id that does not exist).
 PATH_VALUES = {"study_id": "abcdef0123456789", "kind": "transmittance", "fmt": "png",
                "reg_id": "1", "path": "swagger-ui.css"}  # fmt: skip
 
 
 @pytest.fixture
-def tc(tmp_path: Path) -> Iterator[TestClient]:
-    s = Settings(data_dir=tmp_path / "data", database_url=f"sqlite:///{tmp_path / 'c.sqlite'}",
-                 api_token=TOKEN)  # fmt: skip
-    with TestClient(create_app(s, run_jobs=False)) as client:
-        yield client
+def tc(token_client: TestClient) -> TestClient:
+    return token_client
 
 
 def _routes(app: Any) -> list[tuple[BaseRoute, str, set[str]]]:

@@ -4,17 +4,16 @@ browsers, the assets and their types, nothing loaded from elsewhere, open withou
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
 
-from service.api.app import OPEN_ROUTES, create_app
-from service.api.settings import Settings
+from service.api.app import OPEN_ROUTES
 from service.api.web.routes import OPEN_PATHS, STATIC, wants_html
+from tests.service.helpers import API_TOKEN
 
-TOKEN = "s3cret"
+TOKEN = API_TOKEN
 HTML = {"Accept": "text/html,application/xhtml+xml,application/xml;q=0.9,*/*;q=0.8"}
 # Identifiers that look like URLs but are never requested (the SVG namespace).
 NOT_REQUESTS = {"http://www.w3.org/2000/svg"}
@@ -22,11 +21,8 @@ TYPES = {".js": "text/javascript", ".css": "text/css", ".svg": "image/svg+xml"}
 
 
 @pytest.fixture
-def tc(tmp_path: Path) -> Iterator[TestClient]:
-    s = Settings(data_dir=tmp_path / "data", database_url=f"sqlite:///{tmp_path / 'c.sqlite'}",
-                 api_token=TOKEN)  # fmt: skip
-    with TestClient(create_app(s, run_jobs=False)) as client:
-        yield client
+def tc(token_client: TestClient) -> TestClient:
+    return token_client
 
 
 def test_home_is_the_page_for_browsers_and_an_index_otherwise(tc: TestClient) -> None:
