@@ -27,7 +27,7 @@ from worker.solvers.event.roots import (
     refine,
     skip_start,
 )
-from worker.solvers.measure import cubic_minmax, hermite_hull
+from worker.solvers.measure import cubic_above, cubic_inside, cubic_minmax, hermite_hull
 
 
 def f_ref(c: np.ndarray, lam: np.ndarray, off: float, t: np.ndarray) -> np.ndarray:
@@ -297,3 +297,18 @@ def test_hermite_hull_holds_the_cubics_rounded_extrema():
         fmin, _, fmax, _ = cubic_minmax(f0, d0, f1, d1, ln)
         lo, hi = hermite_hull(f0, d0, f1, d1, ln)
         assert lo <= fmin and fmax <= hi
+
+
+def test_cubic_tests_decide_as_the_exact_cubic_extrema_do():
+    # the hull is only a shortcut: every decision is the one cubic_minmax gives
+    rng = np.random.default_rng(47)
+    for _ in range(5_000):
+        f0, f1 = rng.normal(size=2)
+        d0, d1 = rng.normal(size=2) * 10.0 ** rng.uniform(-2, 2, size=2)
+        ln = 10.0 ** rng.uniform(-2, 0.5)
+        a, b, lo, hi = rng.normal(size=4) * 0.5
+        fmin, _, fmax, _ = cubic_minmax(f0, d0, f1, d1, ln)
+        assert cubic_above(f0, d0, f1, d1, ln, a, b) == (fmin - a - b > 0.0)
+        pad = abs(a)
+        want = fmax + pad < hi + 1.5 and fmin - pad > lo - 1.5
+        assert cubic_inside(f0, d0, f1, d1, ln, lo - 1.5, hi + 1.5, pad) == want

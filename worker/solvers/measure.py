@@ -179,6 +179,28 @@ def hermite_hull(f0, d0, f1, d1, ln):
     return min(min(f0, f1), min(b1, b2)) - w, max(max(f0, f1), max(b1, b2)) + w
 
 
+@njit(cache=True, nogil=True)
+def cubic_above(f0, d0, f1, d1, ln, a, b):
+    """Whether ``min - a - b > 0``, the minimum over [0, ln] of the cubic Hermite interpolant of
+    (f, ḟ): on its :func:`hermite_hull` first, then by :func:`cubic_minmax` (the same decision;
+    most tests that pass, pass on the hull, without a square root or a division)."""
+    if hermite_hull(f0, d0, f1, d1, ln)[0] - a - b > 0.0:
+        return True
+    return cubic_minmax(f0, d0, f1, d1, ln)[0] - a - b > 0.0
+
+
+@njit(cache=True, nogil=True)
+def cubic_inside(f0, d0, f1, d1, ln, lo, hi, pad):
+    """Whether the cubic Hermite interpolant of (f, ḟ) on [0, ln] stays ``pad`` inside
+    (lo, hi): ``max + pad < hi`` and ``min - pad > lo``, on the hull first as
+    :func:`cubic_above`."""
+    m, mx = hermite_hull(f0, d0, f1, d1, ln)
+    if mx + pad < hi and m - pad > lo:
+        return True
+    m, _, mx, _ = cubic_minmax(f0, d0, f1, d1, ln)
+    return mx + pad < hi and m - pad > lo
+
+
 @njit(cache=True, nogil=True, inline="always")
 def add_extrema(rows, k, lo, hi):
     """Widen the period's range of s to [lo, hi]."""

@@ -573,15 +573,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             / 384.0
                             * (abs(_row(R, 0, R_W4, y, nz)) + abs(_row(R, 0, R_W4, ye, nz)))
                         )
-                        # the cubic's hull first: where it passes the cubic passes too, and
-                        # most intervals of free flight pass it
-                        wmin, wmax = ms.hermite_hull(w0, d0, w1, d1, h)
-                        quick = (wmax + bnd < g1 * (1.0 - margin)
-                                 and wmin - bnd > -g2 * (1.0 - margin))  # fmt: skip
-                        if not quick:
-                            wmin, _, wmax, _ = ms.cubic_minmax(w0, d0, w1, d1, h)
-                            quick = (wmax + bnd < g1 * (1.0 - margin)
-                                     and wmin - bnd > -g2 * (1.0 - margin))  # fmt: skip
+                        quick = ms.cubic_inside(w0, d0, w1, d1, h, -g2 * (1.0 - margin),
+                                                g1 * (1.0 - margin), bnd)  # fmt: skip
                     elif bilateral:
                         quick = True
                     else:
@@ -596,11 +589,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             / 384.0
                             * (abs(_row(R, r, R_MU4, y, nz)) + abs(_row(R, r, R_MU4, ye, nz)))
                         )
-                        lmin, _ = ms.hermite_hull(l0, e0, l1, e1, h)  # as in free flight
-                        quick = lmin - bnd > margin * max(l0, l1)
-                        if not quick:
-                            lmin, _, _, _ = ms.cubic_minmax(l0, e0, l1, e1, h)
-                            quick = lmin - bnd > margin * max(l0, l1)
+                        quick = ms.cubic_above(l0, e0, l1, e1, h, bnd, margin * max(l0, l1))
                     if quick:
                         if measure:
                             lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_interval(

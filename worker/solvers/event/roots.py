@@ -19,7 +19,7 @@ import math
 
 from numba import njit
 
-from worker.solvers.measure import cubic_minmax, hermite_hull
+from worker.solvers.measure import cubic_above, cubic_minmax
 
 STACK = 160  # pieces the search may hold (depth ~ 4 per level)
 STACK_COLS = 10  # lo, hi, f and ḟ at both ends, the slow modes' f and ḟ at both ends
@@ -305,13 +305,10 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
             if ln <= 0.0625 * total or sp >= STACK - 5:
                 return refine(c, lam, nz, off, lo, hi, flo, fhi, tol_t)
         else:
-            bnd = bound4(w4, lam, nz, lo, hi)
-            if hermite_hull(flo, dlo, fhi, dhi, ln)[0] - bnd > 0.0:
-                continue  # clear on the cubic's hull: clear on the cubic (the same decision)
-            fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
-            if fmin - bnd > 0.0:
+            if cubic_above(flo, dlo, fhi, dhi, ln, bound4(w4, lam, nz, lo, hi), 0.0):
                 continue
             if ln <= tiny or sp >= STACK - 5:
+                tmin = cubic_minmax(flo, dlo, fhi, dhi, ln)[1]
                 tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
                 fc, _ = ev(c, lam, nz, off, tc)
                 if fc <= 0.0:
@@ -405,21 +402,13 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
                 if w4[k] >= 0.0:
                     slow += w4[k] * g
             l4 = ln * ln * ln * ln / 384.0
-            if hermite_hull(flo, dlo, fhi, dhi, ln)[0] - full * l4 > 0.0:
-                continue  # as in _first_root_plain
-            fmin, tmin, _, _ = cubic_minmax(flo, dlo, fhi, dhi, ln)
-            if fmin - full * l4 > 0.0:
+            if cubic_above(flo, dlo, fhi, dhi, ln, full * l4, 0.0):
                 continue
-            sf0 = stack[sp, 6]
-            sd0 = stack[sp, 7]
-            sf1 = stack[sp, 8]
-            sd1 = stack[sp, 9]
-            if hermite_hull(sf0, sd0, sf1, sd1, ln)[0] - slow * l4 - bfast > 0.0:
-                continue
-            smin, _, _, _ = cubic_minmax(sf0, sd0, sf1, sd1, ln)
-            if smin - slow * l4 - bfast > 0.0:
+            if cubic_above(stack[sp, 6], stack[sp, 7], stack[sp, 8], stack[sp, 9], ln,
+                           slow * l4, bfast):  # fmt: skip
                 continue
             if ln <= tiny or sp >= STACK - 5:
+                tmin = cubic_minmax(flo, dlo, fhi, dhi, ln)[1]
                 tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
                 fc, _ = ev(c, lam, nz, off, tc)
                 if fc <= 0.0:
@@ -496,20 +485,12 @@ def clear_test(sums, off, sgn, ln):
     if f0 <= 0.0 or f1 <= 0.0:
         return False
     l4 = ln * ln * ln * ln / 384.0
-    # each test on the cubic's hull first (where it passes, the cubic passes too)
-    if hermite_hull(f0, sgn * d0, f1, sgn * d1, ln)[0] - acc * l4 > 0.0:
-        return True
-    fmin, _, _, _ = cubic_minmax(f0, sgn * d0, f1, sgn * d1, ln)
-    if fmin - acc * l4 > 0.0:
+    if cubic_above(f0, sgn * d0, f1, sgn * d1, ln, acc * l4, 0.0):
         return True
     if bfast == 0.0:
         return False
-    s0 = off + sgn * fs0
-    s1 = off + sgn * fs1
-    if hermite_hull(s0, sgn * ds0, s1, sgn * ds1, ln)[0] - acc_s * l4 - bfast > 0.0:
-        return True
-    smin, _, _, _ = cubic_minmax(s0, sgn * ds0, s1, sgn * ds1, ln)
-    return smin - acc_s * l4 - bfast > 0.0
+    return cubic_above(off + sgn * fs0, sgn * ds0, off + sgn * fs1, sgn * ds1, ln, acc_s * l4,
+                       bfast)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
