@@ -15,6 +15,7 @@ import pytest
 from worker.solvers.event.roots import (
     STACK,
     STACK_COLS,
+    _decayed_clear,
     cabs,
     cexp,
     clear_sums,
@@ -193,6 +194,60 @@ def test_stiff_modes_are_bounded_by_their_size_and_roots_still_found(n):
             decided += 1
             with_root += 1
     assert decided >= n * 11 // 12 and max(1, n // 12) <= with_root <= n * 11 // 12
+
+
+def _piece_inputs(c, lam, off, total, lo, hi):
+    """What the split search hands ``_decayed_clear`` for the piece [lo, hi] of [0, total]:
+    the marked weights, the slow modes' bound weight, and f, ḟ at both ends of the whole sum
+    and of its slow modes."""
+    m2 = np.abs(lam) ** 2
+    fast = m2 > (4.43 / total) ** 2
+    w4 = np.abs(c) * m2 * m2
+    slow = float(w4[~fast].sum())  # the caller's factor for decaying slow modes is 1
+    w4 = np.where(fast, -w4, w4)
+
+    def ends(sel):
+        e = np.exp(np.outer([lo, hi], lam[sel])) * c[sel]
+        f = off + e.real.sum(axis=1)
+        d = (e * lam[sel]).real.sum(axis=1)
+        return f[0], d[0], f[1], d[1]
+
+    return w4, slow, ends(np.ones(len(c), bool)), ends(~fast)
+
+
+def test_decayed_bound_of_fast_modes_never_clears_a_piece_with_a_root():
+    # Stiff, strongly damped modes of an impact (|λ| 1e2…1e5) over a slow sum: on pieces that
+    # start after t = 0 the fast modes are bounded by their size where the piece starts. On
+    # every piece the test clears, the dense samples of f stay positive; it clears pieces the
+    # bounds at t = 0 cannot, and pieces with a root are never cleared.
+    rng = np.random.default_rng(4)
+    cleared = beyond = refused_roots = 0
+    for _ in range(400):
+        c, lam, off = random_sum(rng, 2)
+        k = int(rng.integers(1, 4))
+        mag = 10.0 ** rng.uniform(2.0, 5.0, k)
+        xi = rng.uniform(0.05, 1.0, k)
+        c = np.append(c, rng.normal(scale=1.0, size=k) * (1 + 1j))
+        lam = np.append(lam, mag * (-xi + 1j * np.sqrt(np.maximum(1.0 - xi * xi, 0.0))))
+        total = 0.06
+        lo = float(rng.uniform(0.0, 0.9)) * total
+        hi = lo + float(rng.uniform(0.01, 0.3)) * total
+        w4, slow, (f0, d0, f1, d1), (s0, e0, s1, e1) = _piece_inputs(c, lam, off, total, lo, hi)
+        ln = hi - lo
+        l4 = ln**4 / 384.0
+        got = _decayed_clear(c, lam, len(c), w4, lo, hi, ln, l4, slow, f0, d0, f1, d1, s0, e0,
+                             s1, e1)  # fmt: skip
+        fmin = float(f_ref(c, lam, off, np.linspace(lo, hi, 20_001)).min())
+        if got:
+            cleared += 1
+            assert fmin > 0.0, (c, lam, off, lo, hi)
+            bfast0 = float(np.abs(c[w4 < 0.0]).sum())
+            if not (cubic_above(f0, d0, f1, d1, ln, float(np.abs(w4).sum()) * l4, 0.0)
+                    or cubic_above(s0, e0, s1, e1, ln, slow * l4, bfast0)):  # fmt: skip
+                beyond += 1
+        elif fmin <= 0.0:
+            refused_roots += 1
+    assert cleared >= 250 and beyond >= 150 and refused_roots >= 40
 
 
 def test_cexp_is_cmath_exp_and_cabs_is_abs_to_an_ulp():
