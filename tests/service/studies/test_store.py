@@ -216,9 +216,11 @@ def test_missing_ranges_and_bad_chunks(tmp_path: Path) -> None:
     store.write_chunk(0, 2, records[0:2])
     store.write_chunk(4, 5, records[4:5])
     assert store.missing_ranges() == [(2, 4), (5, 6)]
+    assert not store.has_retry_chunks()
+    (store.chunk_dir / "5-6.npz").write_bytes(b"not a zip")
+    assert store.has_retry_chunks()  # an unreadable chunk is computed again too
     # A chunk marked for retry and an unreadable one are dropped and computed again.
     store.write_chunk(2, 4, records[2:4], retry=True)
-    (store.chunk_dir / "5-6.npz").write_bytes(b"not a zip")
     assert store.has_retry_chunks()
     assert store.missing_ranges() == [(2, 4), (5, 6)]
     assert not (store.chunk_dir / "5-6.npz").exists()
