@@ -16,7 +16,6 @@ Writes ``irregular_budget.md`` and ``irregular_budget.csv``.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import math
 import os
@@ -32,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.point_engine import SPECTRA, cell  # noqa: E402
+from benchmarks.point_engine import SPECTRA, cell, write_results  # noqa: E402
 from worker.simulate import SolverSettings, simulate_point, warm_up  # noqa: E402
 
 
@@ -94,15 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             + f" | {r['long_se'] if r['long_se'] is None else format(r['long_se'], '.3g')} | "
             f"{r['long_periods']} | " + ("–" if r["z"] is None else f"{r['z']:.2f}") + " |"
         )
-    text = "\n".join(lines) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "irregular_budget.md").write_text(text)
-    if rows:
-        with open(args.out / "irregular_budget.csv", "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-    print(text)
+    write_results(args.out, "irregular_budget", lines, rows)
     return 0
 
 

@@ -16,7 +16,6 @@ Writes ``modes_cost.md`` and ``modes_cost.csv`` to the output folder.
 from __future__ import annotations
 
 import argparse
-import csv
 import hashlib
 import os
 import sys
@@ -31,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.point_engine import SPECTRA, timed  # noqa: E402
+from benchmarks.point_engine import SPECTRA, timed, write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import SolverSettings, warm_up  # noqa: E402
 
@@ -75,14 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             f"| {modes} | {np.mean(ms):.1f} | {np.median(ms):.1f} | "
             f"{np.mean([r['periods'] for r in sel]):.0f} | {outcomes} | `{digest[:12]}` |"
         )
-    text = "\n".join(lines) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "modes_cost.md").write_text(text)
-    with open(args.out / "modes_cost.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(text)
+    write_results(args.out, "modes_cost", lines, rows)
     return 0
 
 

@@ -86,6 +86,20 @@ def timed(params: CellParams, settings: SolverSettings, repeat: int = 1):
     return r, best
 
 
+def write_results(out: Path, name: str, lines: list[str], rows: list[dict]) -> None:
+    """Write ``<name>.md`` (the lines) and ``<name>.csv`` (the rows) to ``out``; print the
+    table."""
+    text = "\n".join(lines) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.md").write_text(text)
+    if rows:
+        with open(out / f"{name}.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    print(text)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=40)
@@ -149,14 +163,7 @@ def main() -> None:
         "",
         "Outcomes of the default: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())),
     ]
-    text = "\n".join(lines) + "\n"
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "point_engine.md").write_text(text)
-    with open(args.out / "point_engine.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    print(text)
+    write_results(args.out, "point_engine", lines, rows)
     if args.json:
         print(json.dumps(summary))
 
