@@ -59,6 +59,12 @@ from typing import Any
 
 import numpy as np
 
+# The worker process imports ``worker`` from this checkout, not from wherever the package is
+# installed: comparing two checkouts must run each one's code.
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
 BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, modes=5)
 METHODS = ("event", "exponential", "euler")  # the default first
 # Stated accuracy of Γ (dB) at converged points, per method and reference (docs/accuracy.md).
