@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from worker.memo import ArrayMemo
 from worker.model import SteadyState, System, steady_state
 from worker.solvers.event.roots import STACK, STACK_COLS, first_root
 
@@ -87,16 +88,18 @@ class LinearTail:
         return first_root(coef, lam, nk, self.g2, 0.0, hi, tol_t, stack, w4) < 0.0
 
 
-def linear_tail(sys_: System, forcing: bool = True) -> LinearTail:
-    """Closed-form steady state and the tail-proof data of ``sys_`` (forcing on or off)."""
-    p = sys_.params
-    N = sys_.ndof
-    lam, V = np.linalg.eig(sys_.state_matrix())
+_FREE = ArrayMemo()  # the free system's modes, per cell (γ_r does not enter them)
+
+
+def _free_modes(A: np.ndarray, W: np.ndarray, N: int) -> tuple:
+    """Eigenvalues of ``A`` (one of each conjugate pair), the tip rows ``L``, the largest
+    ``Re λ``, whether the tail bound is valid (``Re λ <= 0``, V well conditioned) and whether
+    every mode decays."""
+    lam, V = np.linalg.eig(A)
     lam_abs = float(np.max(np.abs(lam)))
     max_re = float(np.max(lam.real))
     valid = max_re <= UNDAMPED_RTOL * max(lam_abs, 1.0)
     damped = max_re < -UNDAMPED_RTOL * max(lam_abs, 1.0)
-    steady = steady_state(sys_, forcing=forcing)
     try:
         Vi = np.linalg.inv(V)
         # conditioning of V, cheaply: the 1-norm condition number from the inverse in hand
@@ -108,8 +111,18 @@ def linear_tail(sys_: System, forcing: bool = True) -> LinearTail:
     # One of each conjugate pair with weight 2 (Re(c e^{λt} + c̄ e^{λ̄t}) = Re(2c e^{λt})).
     keep = lam.imag >= 0.0
     weight = np.where(lam.imag > 0.0, 2.0, 1.0)[keep]
-    WV = (sys_.W @ V[:N, :])[keep]
+    WV = (W @ V[:N, :])[keep]
     L = np.ascontiguousarray((weight * WV)[:, None] * Vi[keep, :])
+    return np.ascontiguousarray(lam[keep]), L, max_re, bool(valid and cond_ok), bool(damped)
+
+
+def linear_tail(sys_: System, forcing: bool = True) -> LinearTail:
+    """Closed-form steady state and the tail-proof data of ``sys_`` (forcing on or off)."""
+    p = sys_.params
+    N = sys_.ndof
+    A = sys_.state_matrix()
+    lam, L, max_re, valid, damped = _FREE.get((A, sys_.W), lambda: _free_modes(A, sys_.W, N))
+    steady = steady_state(sys_, forcing=forcing)
     if steady is None:
         xp0 = np.zeros(2 * N)
         w_hat = 0j
@@ -121,8 +134,8 @@ def linear_tail(sys_: System, forcing: bool = True) -> LinearTail:
         scale = float(np.max(np.abs(np.concatenate([steady.U, 1j * p.gamma_r * steady.U]))))
     return LinearTail(
         steady=steady,
-        lam=np.ascontiguousarray(lam[keep]),
-        L=L,
+        lam=lam.copy(),  # copies: the cached arrays are shared by the cell's points
+        L=L.copy(),
         xp0=np.ascontiguousarray(xp0),
         w_hat=w_hat,
         amp=abs(w_hat),
@@ -130,8 +143,8 @@ def linear_tail(sys_: System, forcing: bool = True) -> LinearTail:
         gate=min(p.g1, p.g2) * (1.0 - GATE_RTOL),
         g1=float(p.g1),
         g2=float(p.g2),
-        usable=bool(valid and cond_ok and steady is not None),
-        damped=bool(damped),
+        usable=bool(valid and steady is not None),
+        damped=damped,
         max_re=max_re,
         scale=max(scale, 1e-300),
     )

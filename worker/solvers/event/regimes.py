@@ -24,8 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from worker.memo import ArrayMemo
 from worker.model import System
-from worker.solvers.event.roots import phi1
+from worker.solvers.event.roots import phi1_each
 from worker.solvers.measure import GL_NODES
 
 __all__ = ["EventArrays", "prepare_event", "stuck_matrices"]
@@ -73,35 +74,25 @@ def _null_basis(v: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(vt[1:].T)
 
 
-def stuck_matrices(sys_: System) -> tuple[np.ndarray, ...]:
-    """The constrained system with the tip held on a stop at ``w_tip = w*`` (docs/model.md §5, §7).
+_STUCK = ArrayMemo()  # the constrained system's γ_r-free parts, per cell
 
-    Returns ``(A, Pin, Qout, mu)``: ``ẏ = A y`` with ``y = [v; v̇; c; s; w*]``; ``y = Pin z``
-    maps a free state onto the constraint (the caller sets the last entry to ``w*``);
-    ``z = Qout y`` maps back; ``mu`` is the row of the contact force ``μ = -λ1 + λ2`` over y.
-    """
-    N = sys_.ndof
+
+def _stuck_blocks(M, C, K, W, X) -> tuple[np.ndarray, ...]:
+    """What :func:`stuck_matrices` needs that γ_r does not enter: the null bases, the reduced
+    mass inverse and the K, C and forcing blocks of ``A``, and ``Pin``/``Qout``."""
+    N = len(W)
     m = N - 1
-    g = sys_.params.gamma_r
-    W, X = sys_.W, sys_.X
     Z = _null_basis(W)
     Y = _null_basis(X)
-    M, C, K = sys_.M, sys_.C, sys_.K
     Mr_inv = np.linalg.inv(Y.T @ M @ Z)
     e_s = np.zeros(N)
     e_s[-1] = 1.0
     u1 = W / (W @ W)  # u = u1 w* + Z v holds the tip at w*
     ny = 2 * N + 1
-    A = np.zeros((ny, ny))
-    A[:m, m : 2 * m] = np.eye(m)
-    A[m : 2 * m, :m] = -Mr_inv @ (Y.T @ K @ Z)
-    A[m : 2 * m, m : 2 * m] = -Mr_inv @ (Y.T @ C @ Z)
+    AK = -Mr_inv @ (Y.T @ K @ Z)
+    AC = -Mr_inv @ (Y.T @ C @ Z)
     fy = Mr_inv @ (Y.T @ e_s)
-    A[m : 2 * m, 2 * m] = fy * sys_.f_cos
-    A[m : 2 * m, 2 * m + 1] = fy * sys_.f_sin
-    A[m : 2 * m, 2 * m + 2] = -Mr_inv @ (Y.T @ K @ u1)
-    A[2 * m, 2 * m + 1] = -g
-    A[2 * m + 1, 2 * m] = g
+    Au = -Mr_inv @ (Y.T @ K @ u1)
     Qout = np.zeros((2 * N + 2, ny))
     Qout[:N, :m] = Z
     Qout[:N, 2 * m + 2] = u1
@@ -113,13 +104,40 @@ def stuck_matrices(sys_: System) -> tuple[np.ndarray, ...]:
     Pin[m : 2 * m, N : 2 * N] = Z.T
     Pin[2 * m, 2 * N] = 1.0
     Pin[2 * m + 1, 2 * N + 1] = 1.0
+    return Z, e_s, AK, AC, fy, Au, Qout, Pin
+
+
+def stuck_matrices(sys_: System) -> tuple[np.ndarray, ...]:
+    """The constrained system with the tip held on a stop at ``w_tip = w*`` (docs/model.md §5, §7).
+
+    Returns ``(A, Pin, Qout, mu)``: ``ẏ = A y`` with ``y = [v; v̇; c; s; w*]``; ``y = Pin z``
+    maps a free state onto the constraint (the caller sets the last entry to ``w*``);
+    ``z = Qout y`` maps back; ``mu`` is the row of the contact force ``μ = -λ1 + λ2`` over y.
+    """
+    N = sys_.ndof
+    m = N - 1
+    g = sys_.params.gamma_r
+    M, C, K, W, X = sys_.M, sys_.C, sys_.K, sys_.W, sys_.X
+    Z, e_s, AK, AC, fy, Au, Qout, Pin = _STUCK.get(
+        (M, C, K, W, X), lambda: _stuck_blocks(M, C, K, W, X)
+    )
+    ny = 2 * N + 1
+    A = np.zeros((ny, ny))
+    A[:m, m : 2 * m] = np.eye(m)
+    A[m : 2 * m, :m] = AK
+    A[m : 2 * m, m : 2 * m] = AC
+    A[m : 2 * m, 2 * m] = fy * sys_.f_cos
+    A[m : 2 * m, 2 * m + 1] = fy * sys_.f_sin
+    A[m : 2 * m, 2 * m + 2] = Au
+    A[2 * m, 2 * m + 1] = -g
+    A[2 * m + 1, 2 * m] = g
     # contact force: M q̇ - h = X μ with q̇ = Z v̈, h = -C q - K u + e_s f
     Qd = Z @ A[m : 2 * m, :]
     H = -C @ Qout[N : 2 * N] - K @ Qout[:N]
     H[:, 2 * m] += e_s * sys_.f_cos
     H[:, 2 * m + 1] += e_s * sys_.f_sin
     mu = X @ (M @ Qd - H) / (X @ X)
-    return A, Pin, Qout, mu
+    return A, Pin.copy(), Qout.copy(), mu
 
 
 def _full_rows(sys_: System) -> np.ndarray:
@@ -205,7 +223,7 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
             R[r, R_MU4, :nz] = mu @ A4
         RV[r, :, :m] = R[r, :, :nz] @ Vr
         # exact ∫₀^h e^{(λ - iγ)t} dt per mode, then back to rows over y
-        phi = np.array([phi1(complex(x), h) for x in lf - 1j * gamma])
+        phi = phi1_each(np.ascontiguousarray(lf - 1j * gamma, dtype=np.complex128), h)
         psi[r, :, :nz] = R[r, [R_S, R_SB], :nz] @ ((Vf * phi) @ Vif)
         RVf = R[r, [R_SD, R_SBD], :nz] @ Vf
         for j, t in enumerate(GL_NODES * h):

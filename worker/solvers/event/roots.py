@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from worker.solvers.measure import cubic_above, cubic_minmax
@@ -562,3 +563,12 @@ def phi1(x, ln):
     if z.real * z.real + z.imag * z.imag < 1e-6:  # |z| < 1e-3 without a hypot
         return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
     return (cexp(z) - 1.0) / x
+
+
+@njit(cache=True, nogil=True)
+def phi1_each(xs, ln):
+    """:func:`phi1` of every entry of ``xs`` (one call from Python, not one per entry)."""
+    out = np.empty(len(xs), dtype=np.complex128)
+    for i in range(len(xs)):
+        out[i] = phi1(xs[i], ln)
+    return out
