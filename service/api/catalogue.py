@@ -27,7 +27,6 @@ from sqlalchemy import (
     Integer,
     String,
     Text,
-    create_engine,
     delete,
     event,
     func,
@@ -247,7 +246,7 @@ class Catalogue:
         self.url = url
         # Before any connection of ours: the schema this code reads and writes, or a clear error.
         migrate.upgrade(url)
-        self.engine: Engine = create_engine(url, **kwargs)
+        self.engine: Engine = migrate.create_catalogue_engine(url, **kwargs)
         if url.startswith("sqlite"):
             event.listen(self.engine, "connect", _sqlite_pragmas)
         self._session = sessionmaker(self.engine, expire_on_commit=False)

@@ -69,8 +69,31 @@ _PRE_MIGRATION_ADDITIONS = {
 _PG_LOCK_KEY = 0x696D70616374636C
 
 
-class CatalogueSchemaError(RuntimeError):
+class CatalogueError(RuntimeError):
+    """The catalogue database cannot be used (the message says why)."""
+
+
+class CatalogueSchemaError(CatalogueError):
     """The catalogue database's schema is not one this code can upgrade or use."""
+
+
+class CatalogueDriverError(CatalogueError):
+    """The Python driver a database URL names is not installed."""
+
+
+def create_catalogue_engine(url: Any, **kwargs: Any) -> Engine:
+    """``sqlalchemy.create_engine``, with a missing driver reported as what it is: the URL
+    (password hidden), the module and how to install it (SQLAlchemy raises a bare
+    ``ModuleNotFoundError`` from deep inside)."""
+    try:
+        return create_engine(url, **kwargs)
+    except ImportError as exc:
+        shown = make_url(url).render_as_string(hide_password=True)
+        extra = " (pip install -e '.[postgres]')" if "postgres" in shown.split(":")[0] else ""
+        raise CatalogueDriverError(
+            f"the catalogue database URL {shown} needs the Python driver {exc.name or exc}, "
+            f"which is not installed{extra}"
+        ) from None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -128,8 +151,8 @@ def _engine(url: str, *, lock: bool = True) -> Engine:
             "in-memory SQLite database (use a file: sqlite:////path/catalogue.sqlite)"
         )
     if u.get_backend_name() != "sqlite":
-        return create_engine(u, poolclass=NullPool)
-    engine = create_engine(u, poolclass=NullPool, connect_args={"timeout": 30})
+        return create_catalogue_engine(u, poolclass=NullPool)
+    engine = create_catalogue_engine(u, poolclass=NullPool, connect_args={"timeout": 30})
     if not lock:  # reading the revision only: no need to wait for a writer
         return engine
 

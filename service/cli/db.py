@@ -24,14 +24,17 @@ def _run(args: argparse.Namespace, action: Any) -> int:
     """``action(settings, shown_url)``, with the catalogue's errors as one line and exit 1."""
     from sqlalchemy.exc import SQLAlchemyError
 
-    from service.api.migrate import CatalogueSchemaError
+    from service.api.migrate import CatalogueDriverError, CatalogueError
     from service.cli.service import _without_password
 
     settings = _settings(args)
     shown = _without_password(settings.catalogue_url())
     try:
         return int(action(settings, shown) or 0)
-    except CatalogueSchemaError as exc:
+    except CatalogueDriverError as exc:  # names the URL itself
+        print(f"impactcell: error: {exc}", file=sys.stderr)
+        return 1
+    except CatalogueError as exc:
         print(f"impactcell: error: catalogue {shown}: {exc}", file=sys.stderr)
         return 1
     except SQLAlchemyError as exc:  # unreachable server, bad credentials, unknown driver, ...

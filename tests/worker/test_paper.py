@@ -219,9 +219,11 @@ def test_fig5_theta1_statements(tmp_path: Path) -> None:
     assert ds.transmittance_db.values[:, band].max() < 0
     peaks = ds.transmittance_db.max("gamma_r").values
     assert np.ptp(peaks) < 0.2 and peaks[-1] >= peaks[0]
-    # The dip before the held-tip resonance (≈ 3.9) is deepest for the smallest gap.
+    # The dip before the held-tip resonance (≈ 3.9) is deeper the smaller the gap: g̃ 0.1 by
+    # more than 3 dB; g̃ 0.3's lowest point is an irregular one, whose value moves by tenths of
+    # a dB with the round-off of the chaotic motion, so by more than 0.5 dB.
     dip = ds.transmittance_db.sel(gamma_r=slice(2.6, 3.85)).min("gamma_r").values
-    assert dip[0] < dip[1] - 3 and dip[1] < dip[2:].min() - 1, dip
+    assert dip[0] < dip[1] - 3 and dip[1] < dip[2:].min() - 0.5, dip
 
 
 @pytest.mark.slow

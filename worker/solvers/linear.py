@@ -24,6 +24,7 @@ import numpy as np
 
 from worker.memo import ArrayMemo
 from worker.model import SteadyState, System, steady_state
+from worker.solvers.event.regimes import cond1, eigen
 from worker.solvers.event.roots import STACK, STACK_COLS, first_root
 
 __all__ = ["GATE_RTOL", "LinearTail", "linear_tail"]
@@ -94,20 +95,13 @@ _FREE = ArrayMemo()  # the free system's modes, per cell (γ_r does not enter th
 def _free_modes(A: np.ndarray, W: np.ndarray, N: int) -> tuple:
     """Eigenvalues of ``A`` (one of each conjugate pair), the tip rows ``L``, the largest
     ``Re λ``, whether the tail bound is valid (``Re λ <= 0``, V well conditioned) and whether
-    every mode decays."""
-    lam, V = np.linalg.eig(A)
+    every mode decays. The decomposition is the event solver's (``regimes.eigen``)."""
+    lam, V, Vi = eigen(A)
     lam_abs = float(np.max(np.abs(lam)))
     max_re = float(np.max(lam.real))
     valid = max_re <= UNDAMPED_RTOL * max(lam_abs, 1.0)
     damped = max_re < -UNDAMPED_RTOL * max(lam_abs, 1.0)
-    try:
-        Vi = np.linalg.inv(V)
-        # conditioning of V, cheaply: the 1-norm condition number from the inverse in hand
-        cond_ok = bool(np.all(np.isfinite(Vi))) and (
-            np.abs(V).sum(axis=0).max() * np.abs(Vi).sum(axis=0).max() < 1e12
-        )
-    except np.linalg.LinAlgError:
-        Vi, cond_ok = np.zeros_like(V), False
+    cond_ok = cond1(V, Vi) < 1e12
     # One of each conjugate pair with weight 2 (Re(c e^{λt} + c̄ e^{λ̄t}) = Re(2c e^{λt})).
     keep = lam.imag >= 0.0
     weight = np.where(lam.imag > 0.0, 2.0, 1.0)[keep]

@@ -395,3 +395,16 @@ def test_new_revision_autogenerates_from_the_models(
     finally:
         monkeypatch.undo()
         migrate._scripts.cache_clear()
+
+
+def test_a_missing_database_driver_is_named_with_the_url_and_how_to_install_it() -> None:
+    import importlib.util
+
+    url = "mysql+mysqldb://u:secret@127.0.0.1:1/none"
+    if importlib.util.find_spec("MySQLdb") is not None:  # the driver is there: no error to see
+        migrate.create_catalogue_engine(url).dispose()
+        return
+    with pytest.raises(migrate.CatalogueDriverError) as err:
+        migrate.create_catalogue_engine(url)
+    text = str(err.value)
+    assert "MySQLdb" in text and "u:***@127.0.0.1:1/none" in text and "secret" not in text

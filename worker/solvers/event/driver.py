@@ -61,16 +61,14 @@ class EventRun(KernelRun):
         self.y = np.zeros(nzm)
         self.evlog = np.zeros((0, ek.EV_COLS))
         self.arrays = (
-            ea.nzr, ea.nk, ea.Phi, ea.eh, ea.lam, ea.V, ea.Vi, ea.wt, ea.R, ea.RV, ea.Pin,
-            ea.Qout, ea.psi, ea.gl, sys_.W, np.ascontiguousarray(sys_.Minv @ sys_.X), sys_.G,
-            p.g1, p.g2, self.bilateral, N, self.spp, p.gamma_r, self.f_scale,
-            settings.near_margin, event_tol, self.max_events,
+            ea.nzr, ea.nk, ea.eh, ea.lam, ea.V, ea.Vi, ea.R, ea.RV, ea.B4, ea.Pin, ea.Qout,
+            ea.hp, ea.hm, ea.gl, ea.D, ea.fidx, ea.fcs, ea.cosg, ea.sing,
+            np.ascontiguousarray(sys_.Minv @ sys_.X), sys_.G, p.g1, p.g2, self.bilateral, N,
+            self.spp, p.gamma_r, self.f_scale, event_tol, self.max_events,
         )  # fmt: skip
+        cplx = [np.zeros(nzm, dtype=complex) for _ in range(6)]  # al, ae, c1, c2, cw, Ew
         self.work = (
-            np.zeros(nzm), np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex),
-            np.zeros(nzm, dtype=complex), np.zeros(nzm, dtype=complex),
-            np.zeros(nzm, dtype=complex), np.zeros(nzm),
-            np.zeros((STACK, STACK_COLS)), np.zeros(nzm),
+            np.zeros(nzm), *cplx, np.zeros(nzm), np.zeros((STACK, STACK_COLS)), np.zeros(nzm),
         )  # fmt: skip
 
     def _reset(self) -> None:
@@ -79,16 +77,18 @@ class EventRun(KernelRun):
         self.y[nx] = self.f_scale
         self.y[nx + 1] = 0.0
         ea = self.ea
-        _, a, _, _, cw, _, _, _, _ = self.work
+        _, _, a, _, _, cw, _, _, _, _ = self.work
         ek.start_state(self.y, self.kst, ea.R, ea.RV, ea.Vi, ea.lam, ea.nk, self.bilateral,
                        self.sys.ndof, self.sys.params.g1, self.sys.params.g2, self.h, a,
                        cw)  # fmt: skip
 
     def _save(self) -> object:
-        return self.y.copy()
+        return self.y.copy(), self.work[1].copy()  # the state and its modal coefficients
 
     def _restore(self, extra: object) -> None:
-        self.y[:] = extra  # type: ignore[index]
+        y, al = extra  # type: ignore[misc]
+        self.y[:] = y
+        self.work[1][:] = al
 
     def keep_history(self, cap: int) -> None:
         super().keep_history(cap)

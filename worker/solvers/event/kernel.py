@@ -1,19 +1,25 @@
 """The event-driven kernel: whole periods of exact regime propagation between located events.
 
-Per sub-grid interval ``h = T/n_grid`` of the current regime (``regimes.py``):
+Inside a regime (``regimes.py``) the state is carried as its modal coefficients ``α`` (reduced
+form): a sub-grid interval ``h = T/n_grid`` is ``α ∘ e^{λh}`` and every observable is
+``Re Σ RV_k α_k``. Per interval of the current regime:
 
-* a cheap test first: the cubic Hermite interpolant of the tip (free flight) or of the contact
-  force (stuck) from both ends, widened by ``h⁴/384·|f⁗|`` at the ends, must stay
-  ``near_margin`` clear of the stop (of zero force, relative to the force); the interval is
-  then taken whole with the precomputed step map;
+* a cheap, rigorous test first: the cubic Hermite interpolant of the tip (free flight) or of
+  the contact force (stuck) from both ends, widened by the bound ``h⁴/384 Σ|RV_k||λ_k|⁴|α_k|``
+  of its interpolation error (and by round-off), must stay inside the stops (above zero force);
+  the interval is then taken whole;
 * otherwise an exact search of the gap or contact force (``roots.first_root``) over the rest
   of the interval; the piece up to the first event is propagated exactly and the event is
   applied: at an impact the plastic impulse ``P = -Wᵀq/G`` along ``M⁻¹X`` zeroes the tip's
-  velocity and the tip sticks if the stuck regime's contact force is compressive (or zero and
-  increasing), else it leaves at once; a stuck tip is released where the force reaches zero.
-  After leaving a stop the search for it starts once the gap has opened above round-off
-  (``roots.skip_start``), so a release is never taken for a new impact;
+  velocity (``α += V⁻¹[0; M⁻¹X; 0]·P``) and the tip sticks if the stuck regime's contact force
+  is compressive (or zero and increasing), else it leaves at once; a stuck tip is released
+  where the force reaches zero. After leaving a stop the search for it starts once the gap has
+  opened above round-off (``roots.skip_start``), so a release is never taken for a new impact;
 * a per-period event budget ends a run that chatters.
+
+The forcing oscillator's coefficient is set from the exact phase at every sub-grid point (no
+drift). The regime state ``y`` itself is formed only where it is needed: at events that change
+regime, at period ends (the stroboscopic sample) and for histories.
 
 Each period fills one row of the measurement layout (``measure.py``). The extrema of ``s`` are
 located exactly (Newton on ``ṡ = 0``) when measuring, else taken from the Hermite
@@ -30,23 +36,18 @@ from numba import njit
 
 from worker.solvers import measure as ms
 from worker.solvers.event import roots as rt
-from worker.solvers.event.regimes import (
-    R_MU,
-    R_MU4,
-    R_MUD,
-    R_S,
-    R_SB,
-    R_SBD,
-    R_SD,
-    R_W,
-    R_W4,
-    R_WD,
-)
+from worker.solvers.event.regimes import R_MU, R_MUD, R_S, R_SB, R_SBD, R_SD, R_W, R_WD
 
 # A state beyond this size ends the run (diverged): the search's error bounds (|c|·|λ|⁴·h⁴)
 # overflow well before the state does, and a search on non-finite values never proves an
 # interval clear (it would split ~4¹⁵ times per interval, i.e. hang).
 MAX_STATE = 1e200
+
+# A modal coefficient below this is zero (far below the round-off of any state it is part of).
+TINY = 1e-200
+
+# Round-off allowance of the cheap test, relative to the size of the sums it evaluates.
+PAD = 1e-12
 
 # Reassociation lets LLVM vectorise the small dot products and matrix-vector products (a
 # different summation order, never NaN/inf assumptions).
@@ -59,6 +60,7 @@ K_SKIP_STOP = ms.K_METHOD + 2
 K_SKIP_REM = ms.K_METHOD + 3
 K_PENDING = ms.K_METHOD + 4  # >0: impact at once at this stop; <0: stick-or-leave after one
 K_EVLOG = ms.K_METHOD + 5  # event log rows written
+K_SYNC = ms.K_METHOD + 6  # 1: the modal coefficients (al) are the state y's, carried over
 
 #: Columns of the event log (``history["events"]`` of method ``event``), described.
 EVENT_FIELDS = {
@@ -76,6 +78,7 @@ EV_COLS = len(EVENT_FIELDS)
 
 @njit(cache=True, nogil=True, fastmath=FAST)
 def _modal(Vi, r, y, nk, nz, a):
+    """a = V⁻¹ y (the kept rows): a regime state's modal coefficients."""
     for i in range(nk):
         acc = 0.0 + 0.0j
         for j in range(nz):
@@ -84,12 +87,37 @@ def _modal(Vi, r, y, nk, nz, a):
 
 
 @njit(cache=True, nogil=True, fastmath=FAST)
-def _state_E(V, r, a, E, nk, nz, out):
+def _state(V, r, a, nk, nz, out):
+    """out = Re V a: the regime state of modal coefficients a."""
     for i in range(nz):
         acc = 0.0
         for k in range(nk):
-            acc += (V[r, i, k] * (a[k] * E[k])).real
+            v = V[r, i, k]
+            acc += v.real * a[k].real - v.imag * a[k].imag
         out[i] = acc
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _rowa(RV, r, row, a, nk):
+    """Re Σ RV_k a_k: an observable of modal coefficients a."""
+    acc = 0.0
+    for k in range(nk):
+        v = RV[r, row, k]
+        acc += v.real * a[k].real - v.imag * a[k].imag
+    return acc
+
+
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _step(a, E, nk, out):
+    """out = a ∘ E, coefficients below ``TINY`` set to zero: a decaying mode's coefficient would
+    otherwise shrink through the subnormal numbers, where every operation on it is some
+    hundred times slower (measured: 5× slower free flight once the beam's middle modes
+    had decayed)."""
+    for k in range(nk):
+        z = a[k] * E[k]
+        if abs(z.real) + abs(z.imag) < TINY:
+            z = 0.0 + 0.0j
+        out[k] = z
 
 
 @njit(cache=True, nogil=True)
@@ -115,12 +143,32 @@ def _row_scale(R, r, row, y, nz):
 
 
 @njit(cache=True, nogil=True, fastmath=FAST)
-def _matvec(A, r, y, nz, out):
-    for i in range(nz):
-        acc = 0.0
-        for j in range(nz):
-            acc += A[r, i, j] * y[j]
-        out[i] = acc
+def _bound(B4, RV, r, row, a, eh, lam, nk):
+    """(Σ_k |RV_k||λ_k|⁴|a_k|, Σ_k |RV_k||a_k|) over an interval from its start (growing modes
+    at its end), with |a| <= |Re a| + |Im a|: the fourth derivative's bound and the size of
+    the sum (its round-off scale)."""
+    b = 0.0
+    s = 0.0
+    for k in range(nk):
+        m = abs(a[k].real) + abs(a[k].imag)
+        if lam[r, k].real > 0.0:
+            m *= abs(eh[r, k].real) + abs(eh[r, k].imag)
+        b += B4[r, k] * m
+        v = RV[r, row, k]
+        s += (abs(v.real) + abs(v.imag)) * m
+    return b, s
+
+
+@njit(cache=True, nogil=True)
+def _magnitude(a, nk):
+    """max |Re a_k| + |Im a_k|, or inf if some coefficient is not finite."""
+    big = 0.0
+    for k in range(nk):
+        m = abs(a[k].real) + abs(a[k].imag)
+        if not math.isfinite(m):
+            return math.inf
+        big = max(big, m)
+    return big
 
 
 @njit(cache=True, nogil=True)
@@ -166,62 +214,48 @@ def _log_event(evlog, kst, tau, kind, stop, resid, impulse):
 
 
 @njit(cache=True, nogil=True)
-def _phase_rot(zr, zi, ph):
-    """e^{-i ph}·(zr + i zi) as (re, im)."""
-    rc = math.cos(ph)
-    rs = -math.sin(ph)
+def _phase_rot(zr, zi, rc, rs):
+    """(rc + i rs)·(zr + i zi) as (re, im)."""
     return zr * rc - zi * rs, zr * rs + zi * rc
 
 
-@njit(cache=True, nogil=True)
-def _measure_interval(r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, tol_t):
-    """Measure a whole sub-grid interval (y → ye = Φ y): exact extremum, exact harmonics,
-    Gauss nodes for the phase portrait. Returns (lo, hi, s re, s im, s_b re, s_b im, ∫ṡ²,
-    ∫ṡ_b ṡ)."""
-    s0 = _row(R, r, R_S, y, nz)
-    sd0 = _row(R, r, R_SD, y, nz)
-    s1 = _row(R, r, R_S, ye, nz)
-    sd1 = _row(R, r, R_SD, ye, nz)
-    lo = min(s0, s1)
-    hi = max(s0, s1)
-    if sd0 * sd1 < 0.0:
-        _modal(Vi, r, y, nk[r], nz, a)
-        sc = _extremum(r, a, nk[r], lam, RV, h, sd0, sd1, tol_t, cw)
-        lo = min(lo, sc)
-        hi = max(hi, sc)
-    # all twelve sums in one pass: each is still accumulated in index order (the same bits),
-    # but twelve independent chains keep the adder busy where one or four wait on its latency
-    z0r = z0i = z1r = z1i = 0.0
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _measure_whole(r, a, nk, hp, hm, gl, h, rc, rs):
+    """The harmonics and phase-portrait integrals of a whole sub-grid interval from its
+    modal coefficients a (rc + i rs = e^{-iγτ} at its start). Returns (s re, s im, s_b re,
+    s_b im, ∫ṡ², ∫ṡ_b ṡ)."""
+    z0 = 0.0 + 0.0j
+    z1 = 0.0 + 0.0j
     v0 = v1 = v2 = v3 = 0.0
     q0 = q1 = q2 = q3 = 0.0
-    for i in range(nz):
-        yi = y[i]
-        z0r += psi[r, 0, i].real * yi
-        z0i += psi[r, 0, i].imag * yi
-        z1r += psi[r, 1, i].real * yi
-        z1i += psi[r, 1, i].imag * yi
-        v0 += gl[r, 0, 0, i] * yi
-        q0 += gl[r, 0, 1, i] * yi
-        v1 += gl[r, 1, 0, i] * yi
-        q1 += gl[r, 1, 1, i] * yi
-        v2 += gl[r, 2, 0, i] * yi
-        q2 += gl[r, 2, 1, i] * yi
-        v3 += gl[r, 3, 0, i] * yi
-        q3 += gl[r, 3, 1, i] * yi
-    a0, a1 = _phase_rot(z0r, z0i, ph0)
-    b0, b1 = _phase_rot(z1r, z1i, ph0)
+    for k in range(nk):
+        ak = a[k]
+        z0 += ak * hp[r, 0, k] + ak.conjugate() * hm[r, 0, k]
+        z1 += ak * hp[r, 1, k] + ak.conjugate() * hm[r, 1, k]
+        ar = ak.real
+        ai = ak.imag
+        g = gl[r, 0, 0, k]
+        v0 += g.real * ar - g.imag * ai
+        g = gl[r, 0, 1, k]
+        q0 += g.real * ar - g.imag * ai
+        g = gl[r, 1, 0, k]
+        v1 += g.real * ar - g.imag * ai
+        g = gl[r, 1, 1, k]
+        q1 += g.real * ar - g.imag * ai
+        g = gl[r, 2, 0, k]
+        v2 += g.real * ar - g.imag * ai
+        g = gl[r, 2, 1, k]
+        q2 += g.real * ar - g.imag * ai
+        g = gl[r, 3, 0, k]
+        v3 += g.real * ar - g.imag * ai
+        g = gl[r, 3, 1, k]
+        q3 += g.real * ar - g.imag * ai
+    a0, a1 = _phase_rot(z0.real, z0.imag, rc, rs)
+    b0, b1 = _phase_rot(z1.real, z1.imag, rc, rs)
     w = ms.GL_WEIGHTS
-    vv = 0.0
-    vv += w[0] * v0 * v0
-    vv += w[1] * v1 * v1
-    vv += w[2] * v2 * v2
-    vv += w[3] * v3 * v3
-    vb = 0.0
-    vb += w[0] * q0 * v0
-    vb += w[1] * q1 * v1
-    vb += w[2] * q2 * v2
-    vb += w[3] * q3 * v3
-    return lo, hi, a0, a1, b0, b1, h * vv, h * vb
+    vv = w[0] * v0 * v0 + w[1] * v1 * v1 + w[2] * v2 * v2 + w[3] * v3 * v3
+    vb = w[0] * q0 * v0 + w[1] * q1 * v1 + w[2] * q2 * v2 + w[3] * q3 * v3
+    return a0, a1, b0, b1, h * vv, h * vb
 
 
 @njit(cache=True, nogil=True)
@@ -236,6 +270,22 @@ def _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw):
 
 
 @njit(cache=True, nogil=True)
+def _s_range(r, a, nk, lam, RV, ln, s0, sd0, s1, sd1, measure, tol_t, cw):
+    """The range of s over a piece: exact (Newton on ṡ = 0) when measuring, else that of the
+    Hermite interpolant."""
+    lo = min(s0, s1)
+    hi = max(s0, s1)
+    if ln > 0.0 and sd0 * sd1 < 0.0:
+        if measure:
+            sc = _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw)
+            lo = min(lo, sc)
+            hi = max(hi, sc)
+        else:
+            lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, ln)
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
 def _phi_shift(E, lam, shift, ln, es):
     """(e^{(λ+shift)·ln} - 1)/(λ + shift) from E = e^{λ·ln} and es = e^{shift·ln}."""
     x = lam + shift
@@ -246,42 +296,27 @@ def _phi_shift(E, lam, shift, ln, es):
 
 
 @njit(cache=True, nogil=True)
-def _measure_piece(r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r, measure, tol_t,
-                   cw):  # fmt: skip
-    """Measure an exactly propagated piece of length ln (modal coefficients a at its start,
-    E = e^{λ ln} of the kept modes). Returns what :func:`_measure_interval` returns; without
-    ``measure`` only the range of s (from the Hermite interpolant) and zeros."""
-    lo = min(s0, s1)
-    hi = max(s0, s1)
+def _measure_piece(r, a, nk, lam, RV, E, ln, ph, gamma_r):
+    """The harmonics and phase-portrait integrals of an exactly propagated piece of length ln
+    (modal coefficients a at its start, E = e^{λ ln}, forcing phase ph at its start): what
+    :func:`_measure_whole` returns."""
     if ln <= 0.0:
-        return lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    if sd0 * sd1 < 0.0:
-        if measure:
-            sc = _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw)
-            lo = min(lo, sc)
-            hi = max(hi, sc)
-        else:
-            lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, ln)
-    if not measure:
-        return lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     shift = -1j * gamma_r
     es = rt.cexp(shift * ln)
     acc0 = 0.0 + 0.0j
     acc1 = 0.0 + 0.0j
     for m in range(nk):
         lm = lam[r, m]
+        # ∫ Re(c e^{λt}) e^{-iγt} = ½ (c ∫e^{(λ-iγ)t} + c̄ ∫e^{(λ̄-iγ)t}): a pair's both terms
         p = _phi_shift(E[m], lm, shift, ln, es)
-        if wt[r, m] == 2.0:  # the pair (λ, λ̄) of a real sum: both terms of ∫ Re(·) e^{-iγt}
-            pc = _phi_shift(E[m].conjugate(), lm.conjugate(), shift, ln, es)
-            c = RV[r, R_S, m] * a[m]
-            acc0 += 0.5 * (c * p + c.conjugate() * pc)
-            c = RV[r, R_SB, m] * a[m]
-            acc1 += 0.5 * (c * p + c.conjugate() * pc)
-        else:
-            acc0 += RV[r, R_S, m] * a[m] * p
-            acc1 += RV[r, R_SB, m] * a[m] * p
-    a0, a1 = _phase_rot(acc0.real, acc0.imag, ph)
-    b0, b1 = _phase_rot(acc1.real, acc1.imag, ph)
+        pc = _phi_shift(E[m].conjugate(), lm.conjugate(), shift, ln, es)
+        c = RV[r, R_S, m] * a[m]
+        acc0 += 0.5 * (c * p + c.conjugate() * pc)
+        c = RV[r, R_SB, m] * a[m]
+        acc1 += 0.5 * (c * p + c.conjugate() * pc)
+    a0, a1 = _phase_rot(acc0.real, acc0.imag, math.cos(ph), -math.sin(ph))
+    b0, b1 = _phase_rot(acc1.real, acc1.imag, math.cos(ph), -math.sin(ph))
     # ṡ and ṡ_b at the four Gauss nodes; the nodes are symmetric, so the step from the third
     # to the fourth is the one from the first to the second (three exponentials per mode)
     t0 = ms.GL_NODES[0] * ln
@@ -309,13 +344,14 @@ def _measure_piece(r, a, nk, lam, RV, wt, E, ln, s0, sd0, s1, sd1, ph, gamma_r, 
     w = ms.GL_WEIGHTS
     vv = w[0] * v0 * v0 + w[1] * v1 * v1 + w[2] * v2 * v2 + w[3] * v3 * v3
     vb = w[0] * q0 * v0 + w[1] * q1 * v1 + w[2] * q2 * v2 + w[3] * q3 * v3
-    return lo, hi, a0, a1, b0, b1, ln * vv, ln * vb
+    return a0, a1, b0, b1, ln * vv, ln * vb
 
 
 @njit(cache=True, nogil=True)
-def _opened(contact, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
-    """The contact episode state after a free piece: it ends once the gap of its stop has
-    opened to ``OPEN_FRAC`` of the clearance (exact maximum of the gap over the piece).
+def _opened(contact, a, ln, RV, lam, nk0, g1, g2, w0, d0, w1, d1, cw):
+    """The contact episode state after a free piece (modal coefficients a at its start, the tip
+    and its velocity at both ends): it ends once the gap of its stop has opened to
+    ``OPEN_FRAC`` of the clearance (exact maximum of the gap over the piece).
 
     The exact maximum (Newton on the gap's slope, which near the round-off floor falls back to
     tens of bisections) is sought only where the ends and the gap's Hermite cubic leave it in
@@ -325,25 +361,23 @@ def _opened(contact, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
     sgn = -1.0 if contact == 1 else 1.0
     gk = g1 if contact == 1 else g2
     thr = ms.OPEN_FRAC * gk
-    f0 = gk + sgn * _row(R, 0, R_W, y, nz)
-    d0 = sgn * _row(R, 0, R_WD, y, nz)
-    f1 = gk + sgn * _row(R, 0, R_W, ye, nz)
-    d1 = sgn * _row(R, 0, R_WD, ye, nz)
+    f0 = gk + sgn * w0
+    e0 = sgn * d0
+    f1 = gk + sgn * w1
+    e1 = sgn * d1
     if f0 > thr or f1 > thr:
         return 0
-    _, _, fmax, tmax = ms.cubic_minmax(f0, d0, f1, d1, ln)
+    _, _, fmax, tmax = ms.cubic_minmax(f0, e0, f1, e1, ln)
     if fmax <= 0.5 * thr:
         return contact
-    if d0 < 0.0 <= d1:
+    if e0 < 0.0 <= e1:
         # falling, then rising: the maximum is at an end, and neither is above the threshold
         # (the slope's root in between is a minimum, which the search below would locate)
         return contact
-    if not have_a:
-        _modal(Vi, 0, y, nk[0], nz, a)
-    _coef(RV, 0, R_W, a, nk[0], sgn, cw)
+    _coef(RV, 0, R_W, a, nk0, sgn, cw)
     scale = gk
     bnd = 0.0
-    for k in range(nk[0]):
+    for k in range(nk0):
         lk = lam[0, k]
         m2 = lk.real * lk.real + lk.imag * lk.imag
         ak = rt.cabs(cw[k])
@@ -351,11 +385,11 @@ def _opened(contact, y, ye, ln, R, RV, Vi, lam, nk, nz, g1, g2, a, have_a, cw):
         bnd += ak * m2 * m2 * (1.0 if lk.real <= 0.0 else math.exp(lk.real * ln))
     if fmax + bnd * ln * ln * ln * ln / 384.0 + 1e-12 * scale < thr:
         return contact  # the gap stays below the threshold over the whole piece
-    fm, _ = rt.ev(cw, lam[0], nk[0], gk, tmax)
+    fm, _ = rt.ev(cw, lam[0], nk0, gk, tmax)
     if fm > thr + 1e-12 * scale:
         return 0  # above it at one point: the maximum is too
-    tc = rt.crit(cw, lam[0], nk[0], 0.0, ln, d0, d1, tmax)
-    fc, _ = rt.ev(cw, lam[0], nk[0], gk, tc)
+    tc = rt.crit(cw, lam[0], nk0, 0.0, ln, e0, e1, tmax)
+    fc, _ = rt.ev(cw, lam[0], nk0, gk, tc)
     return 0 if fc > thr else contact
 
 
@@ -457,21 +491,23 @@ def _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact):
 
 @njit(**ms.KERNEL_JIT)
 def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
-                 nzr, nk, Phi, eh, lam, V, Vi, wt, R, RV, Pin, Qout, psi, gl, W, MinvX, G, g1,
-                 g2, bilateral, N, n_grid, gamma_r, f_scale, margin, event_tol, max_events_pp,
-                 lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, a, c1, c2, cw, Ew,
-                 x2, stack, w4):  # fmt: skip
+                 nzr, nk, eh, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs, cosg,
+                 sing, MinvX, G, g1, g2, bilateral, N, n_grid, gamma_r, f_scale, event_tol,
+                 max_events_pp, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, al, ae,
+                 c1, c2, cw, Ew, x2, stack, w4):  # fmt: skip
     """Advance the regime state ``y`` (and its full state ``x``) by up to ``n_periods``
     periods; returns (periods done, END code, period found).
 
     The kernel's own state (regime, pending events, the late start of a search after a
     release, the contact episode) and the period's measurements live in local variables, stored
     to ``kst`` and ``rows`` only at period ends: stores inside the loop would make the compiler
-    reload ``y`` and the matrices after each (measured: 2× slower free flight)."""
+    reload the state and the matrices after each (measured: 2× slower free flight). Inside,
+    the regime state is its modal coefficients ``al``; ``y`` is formed where it is needed."""
     nzm = 2 * N + 2
     nx = 2 * N
     T = 2.0 * math.pi / gamma_r
     h = T / n_grid
+    h4 = h * h * h * h / 384.0
     tol_t = event_tol * T
     r = int(kst[K_REGIME])
     skip_on = kst[K_SKIP_ON] != 0.0
@@ -480,6 +516,13 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
     pending = int(kst[K_PENDING])
     contact = int(kst[ms.K_CONTACT])
     record = hist.shape[0] > 0
+    if kst[K_SYNC] == 0.0:  # a new state: y → al (else al is carried over, to the bit)
+        _modal(Vi, r, y, nk[r], nzr[r], al)
+        kst[K_SYNC] = 1.0
+    # the rows at the current coefficients, kept from the end of the last interval taken
+    # whole: the gap's (free) or the contact force's (stuck) value and slope, s and ṡ
+    have = False
+    f0 = fd0 = s0 = sd0 = 0.0
     for k in range(n_periods):
         ms.begin_row(rows, k)
         period = kst[ms.K_PERIOD]
@@ -492,16 +535,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         last = -1.0
         for j in range(n_grid):
             t = 0.0
-            ph0 = 2.0 * math.pi * j / n_grid
             while True:
                 nz = nzr[r]
                 nkr = nk[r]
-                big = 0.0
-                for i in range(nz):
-                    if not math.isfinite(y[i]):
-                        big = math.inf
-                        break
-                    big = max(big, abs(y[i]))
+                big = _magnitude(al, nkr)
                 if big > MAX_STATE:
                     failed = ms.END_DIVERGED if math.isfinite(big) else ms.END_NONFINITE
                     break
@@ -509,19 +546,20 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 imp_l = 0.0
                 if pending > 0:
                     # impact at the current time (the tip did not leave a stop it was released
-                    # from, or the run starts on a stop)
+                    # from, or the run starts on a stop); the free regime
                     ev_period += 1
                     if ev_period > max_events_pp:
                         failed = ms.END_CHATTER
                         break
                     kk = pending
-                    wu = _row(R, 0, R_W, y, nzm)
-                    wd = _row(R, 0, R_WD, y, nzm)
+                    wu = _rowa(RV, 0, R_W, al, nkr)
+                    wd = _rowa(RV, 0, R_WD, al, nkr)
                     gap = g1 - wu if kk == 1 else g2 + wu
                     resid = gap / max(g1 if kk == 1 else g2, 1e-300)
                     P = -wd / G
-                    for i in range(N):
-                        y[N + i] += MinvX[i] * P
+                    for q in range(nkr):
+                        al[q] += D[q] * P
+                    have = False
                     imp_l = abs(P)
                     nimpacts += 1.0
                     if contact != kk:
@@ -538,8 +576,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if pending < 0:
                     kk = -pending
                     pending = 0
+                    _state(V, 0, al, nkr, nz, y)
                     ok, rn, so, ss, sr = stick_or_leave(y, kk, bilateral, Pin, Qout, R, RV, Vi,
-                                                        lam, nk, N, g1, g2, h, ye, x, x2, a,
+                                                        lam, nk, N, g1, g2, h, ye, x, x2, ae,
                                                         cw)  # fmt: skip
                     if ok:
                         r = rn
@@ -547,6 +586,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         if so and rn == 0:
                             skip_stop = ss
                         skip_rem = sr
+                        _modal(Vi, r, y, nk[r], nzr[r], al)
+                        have = False
                         if record:
                             _record(hist, xh, kst, tau_now, R, r, y, nzr[r],
                                     imp_l if kk == 1 else 0.0, imp_l if kk == 2 else 0.0, kk,
@@ -558,84 +599,77 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if ln <= 1e-13 * h:
                     break
                 # ---- the cheap test on a whole interval
-                have_ye = False
                 if t == 0.0 and not skip_on:
-                    _matvec(Phi, r, y, nz, ye)
-                    have_ye = True
+                    _step(al, eh[r], nkr, ae)
+                    f1 = fd1 = 0.0
                     if r == 0:
-                        w0 = _row(R, 0, R_W, y, nz)
-                        d0 = _row(R, 0, R_WD, y, nz)
-                        w1 = _row(R, 0, R_W, ye, nz)
-                        d1 = _row(R, 0, R_WD, ye, nz)
-                        bnd = (
-                            2.0
-                            * h**4
-                            / 384.0
-                            * (abs(_row(R, 0, R_W4, y, nz)) + abs(_row(R, 0, R_W4, ye, nz)))
-                        )
-                        quick = ms.cubic_inside(w0, d0, w1, d1, h, -g2 * (1.0 - margin),
-                                                g1 * (1.0 - margin), bnd)  # fmt: skip
-                    elif bilateral:
-                        quick = True
+                        if not have:
+                            f0 = _rowa(RV, 0, R_W, al, nkr)
+                            fd0 = _rowa(RV, 0, R_WD, al, nkr)
+                            s0 = _rowa(RV, 0, R_S, al, nkr)
+                            sd0 = _rowa(RV, 0, R_SD, al, nkr)
+                            have = True
+                        f1 = _rowa(RV, 0, R_W, ae, nkr)
+                        fd1 = _rowa(RV, 0, R_WD, ae, nkr)
+                        b4, sc = _bound(B4, RV, 0, R_W, al, eh, lam, nkr)
+                        quick = ms.cubic_inside(f0, fd0, f1, fd1, h, -g2, g1, b4 * h4 + PAD * sc)
                     else:
-                        sgn = -1.0 if r == 1 else 1.0
-                        l0 = sgn * _row(R, r, R_MU, y, nz)
-                        e0 = sgn * _row(R, r, R_MUD, y, nz)
-                        l1 = sgn * _row(R, r, R_MU, ye, nz)
-                        e1 = sgn * _row(R, r, R_MUD, ye, nz)
-                        bnd = (
-                            2.0
-                            * h**4
-                            / 384.0
-                            * (abs(_row(R, r, R_MU4, y, nz)) + abs(_row(R, r, R_MU4, ye, nz)))
-                        )
-                        quick = ms.cubic_above(l0, e0, l1, e1, h, bnd, margin * max(l0, l1))
+                        if not have:
+                            f0 = _rowa(RV, r, R_MU, al, nkr)
+                            fd0 = _rowa(RV, r, R_MUD, al, nkr)
+                            s0 = _rowa(RV, r, R_S, al, nkr)
+                            sd0 = _rowa(RV, r, R_SD, al, nkr)
+                            have = True
+                        if bilateral:
+                            quick = True
+                        else:
+                            f1 = _rowa(RV, r, R_MU, ae, nkr)
+                            fd1 = _rowa(RV, r, R_MUD, ae, nkr)
+                            sgn = -1.0 if r == 1 else 1.0
+                            b4, sc = _bound(B4, RV, r, R_MU, al, eh, lam, nkr)
+                            quick = ms.cubic_above(sgn * f0, sgn * fd0, sgn * f1, sgn * fd1, h,
+                                                   b4 * h4, PAD * sc)  # fmt: skip
                     if quick:
+                        s1 = _rowa(RV, r, R_S, ae, nkr)
+                        sd1 = _rowa(RV, r, R_SD, ae, nkr)
+                        lo, hi = _s_range(r, al, nkr, lam, RV, h, s0, sd0, s1, sd1, measure,
+                                          tol_t, cw)  # fmt: skip
+                        smax = max(smax, hi)
+                        smin = min(smin, lo)
                         if measure:
-                            lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_interval(
-                                r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, tol_t
-                            )
+                            d0_, d1_, d2_, d3_, dv, db = _measure_whole(r, al, nkr, hp, hm, gl,
+                                                                        h, cosg[j], -sing[j])
                             h0 += d0_
                             h1 += d1_
                             h2 += d2_
                             h3 += d3_
                             vv += dv
                             vb += db
-                        else:
-                            s0 = _row(R, r, R_S, y, nz)
-                            s1 = _row(R, r, R_S, ye, nz)
-                            lo = min(s0, s1)
-                            hi = max(s0, s1)
-                            sd0 = _row(R, r, R_SD, y, nz)
-                            sd1 = _row(R, r, R_SD, ye, nz)
-                            if sd0 * sd1 < 0.0:
-                                lo, _, hi, _ = ms.cubic_minmax(s0, sd0, s1, sd1, h)
-                        smax = max(smax, hi)
-                        smin = min(smin, lo)
                         il = 0.0
                         if record and r != 0:
-                            _modal(Vi, r, y, nkr, nz, a)
-                            _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
+                            _coef(RV, r, R_MU, al, nkr, -1.0 if r == 1 else 1.0, cw)
                             for kq in range(nkr):
                                 il += (cw[kq] * rt.phi1(lam[r, kq], h)).real
                         if r == 0 and contact != 0:
-                            contact = _opened(contact, y, ye, h, R, RV, Vi, lam, nk, nz, g1, g2,
-                                              a, False, cw)  # fmt: skip
-                        for i in range(nz):
-                            y[i] = ye[i]
+                            contact = _opened(contact, al, h, RV, lam, nkr, g1, g2, f0, fd0, f1,
+                                              fd1, cw)  # fmt: skip
+                        for q in range(nkr):
+                            al[q] = ae[q]
+                        f0 = f1
+                        fd0 = fd1
+                        s0 = s1
+                        sd0 = sd1
+                        have = not bilateral or r == 0
                         nsteps += 1.0
                         ncoarse += 1.0
                         if record:
+                            _state(V, r, al, nkr, nz, y)
                             _record(hist, xh, kst, period * T + (j + 1) * h, R, r, y, nz,
                                     il if r == 1 else 0.0, il if r == 2 else 0.0, 0.0, Qout, N,
                                     x)  # fmt: skip
                         break
-                # ---- exact search over [t, h] (ye = Φ y already if have_ye)
-                if t == 0.0 and not have_ye:
-                    _matvec(Phi, r, y, nz, ye)
-                    have_ye = True
-                _modal(Vi, r, y, nkr, nz, a)
-                if have_ye:
+                # ---- exact search over [t, h]
+                if t == 0.0:
                     for q in range(nkr):
                         Ew[q] = eh[r, q]
                 else:
@@ -645,9 +679,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 kind = 0
                 if r == 0:
                     # the gaps are g1 - w and g2 + w: one set of sums of w proves both clear
-                    _coef(RV, 0, R_W, a, nkr, 1.0, c2)
+                    _coef(RV, 0, R_W, al, nkr, 1.0, c2)
                     sums = rt.clear_sums(c2, lam[0], Ew, nkr, ln)
-                    _coef(RV, 0, R_W, a, nkr, -1.0, c1)
+                    _coef(RV, 0, R_W, al, nkr, -1.0, c1)
                     for kk in range(1, 3):
                         gk = g1 if kk == 1 else g2
                         sg = -1.0 if kk == 1 else 1.0
@@ -665,7 +699,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                                 continue
                             te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t, stack,
                                                      w4)  # fmt: skip
-                        elif lim == ln and not have_ye:  # Ew = cexp(λ ln): reuse it
+                        elif lim == ln:  # Ew = e^{λ ln}: the end costs no exponentials
                             te = rt.first_root_end(cc, lam[0], Ew, nkr, gk, ts, ln, tol_t, stack,
                                                    w4)  # fmt: skip
                         else:
@@ -675,17 +709,15 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             kind = kk
                 elif not bilateral:
                     sgn = -1.0 if r == 1 else 1.0
-                    _coef(RV, r, R_MU, a, nkr, sgn, c1)
+                    _coef(RV, r, R_MU, al, nkr, sgn, c1)
                     ts = skip_rem if skip_on else 0.0
                     te = -1.0
                     if ts == 0.0:
                         if not rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln):
                             te = rt.first_root_whole(c1, lam[r], Ew, nkr, 0.0, ln, tol_t, stack,
                                                      w4)  # fmt: skip
-                    elif ts < ln and not have_ye:
-                        te = rt.first_root_end(c1, lam[r], Ew, nkr, 0.0, ts, ln, tol_t, stack, w4)
                     elif ts < ln:
-                        te = rt.first_root(c1, lam[r], nkr, 0.0, ts, ln, tol_t, stack, w4)
+                        te = rt.first_root_end(c1, lam[r], Ew, nkr, 0.0, ts, ln, tol_t, stack, w4)
                     if te >= 0.0:
                         t_ev = te
                         kind = 2 + r  # release from stop r
@@ -693,53 +725,61 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if t_ev >= 0.0:
                     for q in range(nkr):
                         Ew[q] = rt.cexp(lam[r, q] * lp)
-                    _state_E(V, r, a, Ew, nkr, nz, ye)
-                elif not have_ye:
-                    _state_E(V, r, a, Ew, nkr, nz, ye)
-                if measure and t == 0.0 and t_ev < 0.0:
-                    # a whole interval after all: its precomputed rows measure it
-                    lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_interval(
-                        r, y, ye, nz, R, psi, gl, h, ph0, Vi, RV, lam, nk, a, cw, tol_t
-                    )
-                else:
-                    lo, hi, d0_, d1_, d2_, d3_, dv, db = _measure_piece(
-                        r, a, nkr, lam, RV, wt, Ew, lp, _row(R, r, R_S, y, nz),
-                        _row(R, r, R_SD, y, nz), _row(R, r, R_S, ye, nz),
-                        _row(R, r, R_SD, ye, nz), ph0 + gamma_r * t, gamma_r, measure, tol_t, cw,
-                    )  # fmt: skip
+                _step(al, Ew, nkr, ae)
+                if not have:
+                    s0 = _rowa(RV, r, R_S, al, nkr)
+                    sd0 = _rowa(RV, r, R_SD, al, nkr)
+                s1 = _rowa(RV, r, R_S, ae, nkr)
+                sd1 = _rowa(RV, r, R_SD, ae, nkr)
+                lo, hi = _s_range(r, al, nkr, lam, RV, lp, s0, sd0, s1, sd1, measure, tol_t, cw)
                 smax = max(smax, hi)
                 smin = min(smin, lo)
-                h0 += d0_
-                h1 += d1_
-                h2 += d2_
-                h3 += d3_
-                vv += dv
-                vb += db
+                if measure:
+                    if t == 0.0 and t_ev < 0.0:
+                        # a whole interval after all: its precomputed rows measure it
+                        d0_, d1_, d2_, d3_, dv, db = _measure_whole(r, al, nkr, hp, hm, gl, h,
+                                                                    cosg[j], -sing[j])
+                    else:
+                        d0_, d1_, d2_, d3_, dv, db = _measure_piece(
+                            r, al, nkr, lam, RV, Ew, lp, 2.0 * math.pi * j / n_grid + gamma_r * t,
+                            gamma_r,
+                        )  # fmt: skip
+                    h0 += d0_
+                    h1 += d1_
+                    h2 += d2_
+                    h3 += d3_
+                    vv += dv
+                    vb += db
                 il = 0.0
                 if record and r != 0:
-                    _coef(RV, r, R_MU, a, nkr, -1.0 if r == 1 else 1.0, cw)
+                    _coef(RV, r, R_MU, al, nkr, -1.0 if r == 1 else 1.0, cw)
                     for kq in range(nkr):
                         il += (cw[kq] * rt.phi1(lam[r, kq], lp)).real
                 if r == 0 and contact != 0:
-                    contact = _opened(contact, y, ye, lp, R, RV, Vi, lam, nk, nz, g1, g2, a,
-                                      True, cw)  # fmt: skip
+                    contact = _opened(contact, al, lp, RV, lam, nkr, g1, g2,
+                                      _rowa(RV, 0, R_W, al, nkr), _rowa(RV, 0, R_WD, al, nkr),
+                                      _rowa(RV, 0, R_W, ae, nkr), _rowa(RV, 0, R_WD, ae, nkr),
+                                      cw)  # fmt: skip
                 if skip_on:
                     skip_rem -= lp
                     if skip_rem <= 0.0:
                         skip_on = False
-                for i in range(nz):
-                    y[i] = ye[i]
+                for q in range(nkr):
+                    al[q] = ae[q]
+                have = False
                 nsteps += 1.0
                 t = h if t_ev < 0.0 else t + lp
                 tau_now = period * T + j * h + t
                 if t_ev < 0.0:
                     if record:
+                        _state(V, r, al, nkr, nz, y)
                         _record(hist, xh, kst, tau_now, R, r, y, nz, il if r == 1 else 0.0,
                                 il if r == 2 else 0.0, 0.0, Qout, N, x)  # fmt: skip
                     break
                 if kind <= 2:
                     # impact on stop `kind` (applied at the top of the loop)
                     if record and lp > 0.0:
+                        _state(V, r, al, nkr, nz, y)
                         _record(hist, xh, kst, tau_now, R, r, y, nz, 0.0, 0.0, 0.0, Qout, N, x)
                     pending = kind
                     continue
@@ -748,27 +788,29 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if ev_period > max_events_pp:
                     failed = ms.END_CHATTER
                     break
+                _state(V, r, al, nkr, nz, y)
                 if record:
                     sgn = -1.0 if r == 1 else 1.0
                     resid = sgn * _row(R, r, R_MU, y, nz) / max(_row_scale(R, r, R_MU, y, nz),
-                                                                 1e-300)  # fmt: skip
+                                                                1e-300)  # fmt: skip
                     _log_event(evlog, kst, tau_now, 2.0, r, resid, 0.0)
                 rk = r
                 pending, skip_on, ss, skip_rem = release(y, rk, Qout, R, RV, Vi, lam, nk, N, g1,
-                                                         g2, h, x, a, cw)  # fmt: skip
+                                                         g2, h, x, ae, cw)  # fmt: skip
                 if skip_on:
                     skip_stop = ss
                 r = 0
+                _modal(Vi, 0, y, nk[0], nzm, al)
                 if record:
                     _record(hist, xh, kst, tau_now, R, 0, y, nzm, il if rk == 1 else 0.0,
                             il if rk == 2 else 0.0, 2.0 + rk, Qout, N, x)  # fmt: skip
             if failed != ms.END_NONE:
                 break
-            # exact forcing phase at the grid point (no drift of the oscillator)
-            ang = 2.0 * math.pi * (j + 1) / n_grid
-            ic = 2 * N if r == 0 else 2 * N - 2
-            y[ic] = f_scale * math.cos(ang)
-            y[ic + 1] = f_scale * math.sin(ang)
+        # the forcing oscillator's exact phase at the period's end (it cannot drift)
+        f = fidx[r]
+        if f >= 0 and failed == ms.END_NONE:
+            al[f] = f_scale * fcs[r, 0]
+            have = False
         rows[k, ms.M_SMIN] = smin
         rows[k, ms.M_SMAX] = smax
         rows[k, ms.M_S_RE] = h0
@@ -787,6 +829,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         rows[k, ms.M_REGIME] = r
         _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
         kst[ms.K_PERIOD] += 1.0
+        _state(V, r, al, nk[r], nzr[r], y)
         if failed != ms.END_NONE:
             return k + 1, failed, 0
         full_state(r, y, Qout, N, x)
