@@ -637,8 +637,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         smax = max(smax, hi)
                         smin = min(smin, lo)
                         if measure:
-                            d0_, d1_, d2_, d3_, dv, db = _measure_whole(r, al, nkr, hp, hm, gl,
-                                                                        h, cosg[j], -sing[j])
+                            d0_, d1_, d2_, d3_, dv, db = _measure_whole(
+                                r, al, nkr, hp, hm, gl, h, cosg[j], -sing[j]
+                            )
                             h0 += d0_
                             h1 += d1_
                             h2 += d2_
@@ -737,8 +738,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if measure:
                     if t == 0.0 and t_ev < 0.0:
                         # a whole interval after all: its precomputed rows measure it
-                        d0_, d1_, d2_, d3_, dv, db = _measure_whole(r, al, nkr, hp, hm, gl, h,
-                                                                    cosg[j], -sing[j])
+                        d0_, d1_, d2_, d3_, dv, db = _measure_whole(
+                            r, al, nkr, hp, hm, gl, h, cosg[j], -sing[j]
+                        )
                     else:
                         d0_, d1_, d2_, d3_, dv, db = _measure_piece(
                             r, al, nkr, lam, RV, Ew, lp, 2.0 * math.pi * j / n_grid + gamma_r * t,

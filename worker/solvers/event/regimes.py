@@ -25,14 +25,16 @@ four Gauss nodes.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from worker.memo import ArrayMemo
 from worker.model import System
-from worker.solvers.event.roots import phi1_each
+from worker.solvers.event.roots import cexp, phi1
 from worker.solvers.measure import GL_NODES
 
 __all__ = ["EventArrays", "eigen", "prepare_event", "stuck_matrices"]
@@ -141,7 +143,16 @@ def _stuck_blocks(M, C, K, W, X) -> tuple[np.ndarray, ...]:
     Ar[:m, m:] = np.eye(m)
     Ar[m:, :m] = AK
     Ar[m:, m:] = AC
-    return Z, e_s, AK, AC, fy, Au, Qout, Pin, Ar
+    # contact force μ = -λ1 + λ2 over y: M q̇ - h = X μ with q̇ = Z v̈, h = -C q - K u + e_s f;
+    # its forcing entries are kc·(f_cos, f_sin), the rest does not depend on γ_r
+    rows = np.zeros((m, ny))  # v̈ over y without the forcing
+    rows[:, :m] = AK
+    rows[:, m : 2 * m] = AC
+    rows[:, 2 * m + 2] = Au
+    H = -C @ Qout[N : 2 * N] - K @ Qout[:N]
+    mu0 = X @ (M @ (Z @ rows) - H) / (X @ X)
+    kc = float(X @ (M @ (Z @ fy) - e_s) / (X @ X))
+    return Z, e_s, AK, AC, fy, Au, Qout, Pin, Ar, mu0, kc
 
 
 def stuck_matrices(sys_: System) -> tuple[np.ndarray, ...]:
@@ -160,7 +171,7 @@ def _stuck(sys_: System) -> tuple[np.ndarray, ...]:
     m = N - 1
     g = sys_.params.gamma_r
     M, C, K, W, X = sys_.M, sys_.C, sys_.K, sys_.W, sys_.X
-    Z, e_s, AK, AC, fy, Au, Qout, Pin, Ar = _STUCK.get(
+    Z, e_s, AK, AC, fy, Au, Qout, Pin, Ar, mu0, kc = _STUCK.get(
         (M, C, K, W, X), lambda: _stuck_blocks(M, C, K, W, X)
     )
     ny = 2 * N + 1
@@ -171,12 +182,9 @@ def _stuck(sys_: System) -> tuple[np.ndarray, ...]:
     A[m : 2 * m, 2 * m + 2] = Au
     A[2 * m, 2 * m + 1] = -g
     A[2 * m + 1, 2 * m] = g
-    # contact force: M q̇ - h = X μ with q̇ = Z v̈, h = -C q - K u + e_s f
-    Qd = Z @ A[m : 2 * m, :]
-    H = -C @ Qout[N : 2 * N] - K @ Qout[:N]
-    H[:, 2 * m] += e_s * sys_.f_cos
-    H[:, 2 * m + 1] += e_s * sys_.f_sin
-    mu = X @ (M @ Qd - H) / (X @ X)
+    mu = mu0.copy()
+    mu[2 * m] = kc * sys_.f_cos
+    mu[2 * m + 1] = kc * sys_.f_sin
     return A, Pin, Qout, mu, Ar
 
 
@@ -194,55 +202,193 @@ def _full_rows(sys_: System) -> np.ndarray:
     return rows
 
 
-def _block_eig(A: np.ndarray, n: int, gamma: float, stuck: bool):
-    """``(λ, V, V⁻¹, cond)`` of ``[[A₀, B], [0, Ω]]`` (``A₀`` its leading n × n block, the
-    cell's own dynamics; ``Ω`` the forcing oscillator at γ_r, with the stop's position as a
-    third, constant state when ``stuck``), from the cached decomposition of ``A₀``."""
-    lam0, V0, Vi0 = eigen(np.ascontiguousarray(A[:n, :n]))
-    B = A[:n, n:]
-    # Ω's eigenvectors: e^{±iγτ} in (cos, sin), and the constant w*
-    mus = [1j * gamma, -1j * gamma] + ([0j] if stuck else [])
-    p = len(mus)
-    E = np.zeros((p, p), dtype=complex)
-    E[0, 0], E[1, 0] = 1.0, -1j
-    E[0, 1], E[1, 1] = 1.0, 1j
+_PAIRS = ArrayMemo()  # the reduced form of the cells' own modes
+
+
+def _cell_modes(A0: np.ndarray) -> tuple:
+    """The cached decomposition of a cell's own dynamics ``A₀`` and its reduced form: the kept
+    modes (one of each conjugate pair, weight 2; real ones weight 1), whether that form
+    reconstructs the identity (exact pairs, as LAPACK returns them for a real matrix; if not,
+    every mode is kept with weight 1), and the 1-norms of V's columns and of V⁻¹'s columns."""
+    lam0, V0, Vi0 = eigen(A0)
+
+    def compute() -> tuple:
+        keep = np.flatnonzero(lam0.imag >= 0.0)
+        w = np.where(lam0.imag[keep] > 0.0, 2.0, 1.0)
+        paired = bool(np.sum(lam0.imag > 0) == np.sum(lam0.imag < 0)) and bool(
+            np.max(np.abs(((V0[:, keep] * w) @ Vi0[keep, :]).real - np.eye(len(lam0)))) <= 1e-9
+        )
+        if not paired:
+            keep = np.arange(len(lam0))
+            w = np.ones(len(lam0))
+        cv = float(np.abs(V0).sum(axis=0).max())
+        cvi = np.ascontiguousarray(np.abs(Vi0).sum(axis=0))
+        return keep.astype(np.int64), w, paired, cv, cvi
+
+    keep, w, paired, cv, cvi = _PAIRS.get((A0,), compute)
+    return lam0, V0, Vi0, keep, w, paired, cv, cvi
+
+
+@njit(cache=True, nogil=True)
+def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, R, gaprow, imp,
+            lam, V, Vi, RV, B4, hp, hm, gl, D, eh, fidx, fcs, nk):  # fmt: skip
+    """Fill regime r's tables for ``[[A₀, B], [0, Ω]]`` (A₀ the cell's own dynamics, with its
+    cached modes; Ω the forcing oscillator at γ_r and, when ``stuck``, the stop's position as a
+    constant state): its reduced modes, rows, bound weights, harmonic and Gauss-node tables and
+    step factors over one sub-grid interval h (see :class:`EventArrays`). Returns the 1-norm
+    condition number of its eigenvector matrix.
+
+    Ω's eigenvectors e (e^{±iγτ} in (cos, sin), and the constant w*) extend to
+    ``[(μ - A₀)⁻¹ B e; e]`` through A₀'s modes; with V = [[V₀, T], [0, E]] the inverse is
+    [[V₀⁻¹, -V₀⁻¹ T E⁻¹], [0, E⁻¹]]."""
+    n0 = lam0.shape[0]
+    p = 3 if stuck else 2
+    nz = n0 + p
+    E = np.zeros((p, p), dtype=np.complex128)
+    E[0, 0] = 1.0
+    E[1, 0] = -1j
+    E[0, 1] = 1.0
+    E[1, 1] = 1j
     if stuck:
         E[2, 2] = 1.0
-    # (μ - A₀)⁻¹ B e through A₀'s modes; the -iγ column is the conjugate of the +iγ one
-    T = np.zeros((n, p), dtype=complex)
-    ViB = Vi0 @ B
-    T[:, 0] = V0 @ ((ViB @ E[:, 0]) / (mus[0] - lam0))
-    T[:, 1] = T[:, 0].conj()
+    T = np.zeros((n0, p), dtype=np.complex128)
+    u = np.zeros(n0, dtype=np.complex128)
+    for i in range(n0):
+        acc = 0j
+        for j in range(n0):
+            acc += Vi0[i, j] * (B[j, 0] - 1j * B[j, 1])
+        u[i] = acc / (1j * gamma - lam0[i])
+    for i in range(n0):
+        acc = 0j
+        for k in range(n0):
+            acc += V0[i, k] * u[k]
+        T[i, 0] = acc
+        T[i, 1] = acc.conjugate()
     if stuck:
-        T[:, 2] = V0 @ ((ViB @ E[:, 2]) / (0.0 - lam0))
-    scale = np.sqrt(np.sum(np.abs(T) ** 2, axis=0) + np.sum(np.abs(E) ** 2, axis=0))
-    T /= scale
-    E /= scale
-    Ei = np.linalg.inv(E)
-    nz = n + p
-    V = np.zeros((nz, nz), dtype=complex)
-    V[:n, :n] = V0
-    V[:n, n:] = T
-    V[n:, n:] = E
-    Vi = np.zeros((nz, nz), dtype=complex)
-    Vi[:n, :n] = Vi0
-    Vi[:n, n:] = -Vi0 @ T @ Ei
-    Vi[n:, n:] = Ei
-    lam = np.concatenate([lam0, np.array(mus, dtype=complex)])
-    return lam, V, Vi, cond1(V, Vi)
-
-
-def _reduce(lam, V, Vi):
-    """One eigenvalue of each conjugate pair, weight 2 (exact pairs, as LAPACK returns them);
-    the full set with weight 1 where the pairing does not reconstruct the identity."""
-    keep = lam.imag >= 0.0
-    wt = np.where(lam.imag > 0.0, 2.0, 1.0)[keep]
-    Vr = V[:, keep] * wt
-    Vir = Vi[keep, :]
-    eye = np.eye(len(lam))
-    if np.sum(lam.imag > 0) != np.sum(lam.imag < 0) or np.max(np.abs((Vr @ Vir).real - eye)) > 1e-9:
-        return lam, V, Vi, np.ones(len(lam)), np.arange(len(lam))
-    return lam[keep], Vr, Vir, wt, np.flatnonzero(keep)
+        for i in range(n0):
+            acc = 0j
+            for j in range(n0):
+                acc += Vi0[i, j] * B[j, 2]
+            u[i] = acc / (0.0 - lam0[i])
+        for i in range(n0):
+            acc = 0j
+            for k in range(n0):
+                acc += V0[i, k] * u[k]
+            T[i, 2] = acc
+    for c in range(p):  # unit columns
+        sq = 0.0
+        for i in range(n0):
+            sq += T[i, c].real ** 2 + T[i, c].imag ** 2
+        for i in range(p):
+            sq += E[i, c].real ** 2 + E[i, c].imag ** 2
+        sc = math.sqrt(sq)
+        for i in range(n0):
+            T[i, c] /= sc
+        for i in range(p):
+            E[i, c] /= sc
+    Ei = np.zeros((p, p), dtype=np.complex128)
+    det = E[0, 0] * E[1, 1] - E[0, 1] * E[1, 0]
+    Ei[0, 0] = E[1, 1] / det
+    Ei[0, 1] = -E[0, 1] / det
+    Ei[1, 0] = -E[1, 0] / det
+    Ei[1, 1] = E[0, 0] / det
+    if stuck:
+        Ei[2, 2] = 1.0 / E[2, 2]
+    G = np.zeros((n0, p), dtype=np.complex128)  # -V₀⁻¹ T E⁻¹
+    TE = np.zeros((n0, p), dtype=np.complex128)
+    for i in range(n0):
+        for c in range(p):
+            acc = 0j
+            for k in range(p):
+                acc += T[i, k] * Ei[k, c]
+            TE[i, c] = acc
+    for i in range(n0):
+        for c in range(p):
+            acc = 0j
+            for k in range(n0):
+                acc += Vi0[i, k] * TE[k, c]
+            G[i, c] = -acc
+    # condition number: column sums of V and V⁻¹
+    nv = cv0
+    for c in range(p):
+        acc = 0.0
+        for i in range(n0):
+            acc += abs(T[i, c])
+        for i in range(p):
+            acc += abs(E[i, c])
+        nv = max(nv, acc)
+    nvi = 0.0
+    for j in range(n0):
+        nvi = max(nvi, cvi0[j])
+    for c in range(p):
+        acc = 0.0
+        for i in range(n0):
+            acc += abs(G[i, c])
+        for i in range(p):
+            acc += abs(Ei[i, c])
+        nvi = max(nvi, acc)
+    cond = nv * nvi
+    # the kept modes: A₀'s reduced ones, then +iγ (and -iγ when unpaired), then w*'s
+    m = 0
+    for q in range(keep0.shape[0]):
+        k = keep0[q]
+        lam[r, m] = lam0[k]
+        for i in range(n0):
+            V[r, i, m] = V0[i, k] * w0[q]
+        for i in range(n0, nz):
+            V[r, i, m] = 0.0
+        for j in range(n0):
+            Vi[r, m, j] = Vi0[k, j]
+        for c in range(p):
+            Vi[r, m, n0 + c] = G[k, c]
+        m += 1
+    fpos = m  # the forcing mode +iγ comes next; set from the exact phase where paired
+    fidx[r] = fpos if paired else -1
+    for c in range(p):
+        if c == 1 and paired:
+            continue  # the conjugate of +iγ
+        wt = 2.0 if (c == 0 and paired) else 1.0
+        lam[r, m] = 1j * gamma if c == 0 else (-1j * gamma if c == 1 else 0.0)
+        for i in range(n0):
+            V[r, i, m] = T[i, c] * wt
+        for i in range(p):
+            V[r, n0 + i, m] = E[i, c] * wt
+        for j in range(n0):
+            Vi[r, m, j] = 0.0
+        for i in range(p):
+            Vi[r, m, n0 + i] = Ei[c, i]
+        m += 1
+    nk[r] = m
+    fcs[r, 0] = Vi[r, fpos, n0]
+    fcs[r, 1] = Vi[r, fpos, n0 + 1]
+    nrows = R.shape[0]
+    for k in range(m):
+        lk = lam[r, k]
+        for row in range(nrows):
+            acc = 0j
+            for i in range(nz):
+                acc += R[row, i] * V[r, i, k]
+            RV[r, row, k] = acc
+        m2 = lk.real * lk.real + lk.imag * lk.imag
+        B4[r, k] = abs(RV[r, gaprow, k]) * m2 * m2
+        # exact ∫₀^h Re(c e^{λt}) e^{-iγt} dt = ½ (c ∫e^{(λ - iγ)t} + c̄ ∫e^{(λ̄ - iγ)t})
+        pp = 0.5 * phi1(lk - 1j * gamma, h)
+        pm = 0.5 * phi1(lk.conjugate() - 1j * gamma, h)
+        hp[r, 0, k] = RV[r, R_S, k] * pp
+        hm[r, 0, k] = RV[r, R_S, k].conjugate() * pm
+        hp[r, 1, k] = RV[r, R_SB, k] * pp
+        hm[r, 1, k] = RV[r, R_SB, k].conjugate() * pm
+        for j in range(4):
+            et = cexp(lk * (GL_NODES[j] * h))
+            gl[r, j, 0, k] = RV[r, R_SD, k] * et
+            gl[r, j, 1, k] = RV[r, R_SBD, k] * et
+        eh[r, k] = cexp(lk * h)
+        if imp.shape[0] > 0:
+            acc = 0j
+            for i in range(nz):
+                acc += Vi[r, k, i] * imp[i]
+            D[k] = acc
+    return cond
 
 
 def prepare_event(sys_: System, n_grid: int) -> EventArrays:
@@ -251,7 +397,6 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
     nzm = 2 * N + 2
     gamma = sys_.params.gamma_r
     h = 2.0 * math.pi / gamma / n_grid
-    full = _full_rows(sys_)
     A1, Pr, Qr, mu, _ = _stuck(sys_)
     nzr = np.array([nzm, nzm - 1, nzm - 1], dtype=np.int64)
     nk = np.zeros(3, dtype=np.int64)
@@ -264,63 +409,48 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
     hp = np.zeros((3, 2, nzm), dtype=complex)
     hm = np.zeros((3, 2, nzm), dtype=complex)
     gl = np.zeros((3, 4, 2, nzm), dtype=complex)
+    eh = np.zeros((3, nzm), dtype=complex)
     fidx = np.zeros(3, dtype=np.int64)
     fcs = np.zeros((3, 2), dtype=complex)
     D = np.zeros(nzm, dtype=complex)
+    full = _full_rows(sys_)
+    R[0, :6] = full
+    R[1, :6, : nzm - 1] = full @ Qr
+    R[1, R_MU, : nzm - 1] = mu
+    R[1, R_MUD, : nzm - 1] = mu @ A1
+    imp = np.zeros(nzm)
+    imp[N : 2 * N] = sys_.Minv @ sys_.X
     cond = 0.0
     # regime 0 (free) and regime 1 (stuck); regime 2 has regime 1's matrices (the stop's
     # position is a state, not a parameter)
     for r, A in ((0, sys_.augmented_matrix()), (1, A1)):
         nz = A.shape[0]
         n0 = nz - (2 if r == 0 else 3)
-        lf, Vf, Vif, cr = _block_eig(A, n0, gamma, stuck=r > 0)
-        cond = max(cond, cr)
-        lr, Vr, Vir, _, kept = _reduce(lf, Vf, Vif)
-        m = len(lr)
-        nk[r] = m
-        lam[r, :m] = lr
-        V[r, :nz, :m] = Vr
-        Vi[r, :m, :nz] = Vir
-        if r == 0:
-            R[0, :6] = full
-        else:
-            R[r, :6, :nz] = full @ Qr
-            R[r, R_MU, :nz] = mu
-            R[r, R_MUD, :nz] = mu @ A
-        RV[r, :, :m] = R[r, :, :nz] @ Vr
-        m2 = np.abs(lr) ** 2
-        B4[r, :m] = np.abs(RV[r, R_W if r == 0 else R_MU, :m]) * m2 * m2
-        # exact ∫₀^h Re(c e^{λt}) e^{-iγt} dt = ½ (c ∫e^{(λ - iγ)t} + c̄ ∫e^{(λ̄ - iγ)t})
-        pp = 0.5 * phi1_each(np.ascontiguousarray(lr - 1j * gamma), h)
-        pm = 0.5 * phi1_each(np.ascontiguousarray(lr.conj() - 1j * gamma), h)
-        for i, row in enumerate((R_S, R_SB)):
-            hp[r, i, :m] = RV[r, row, :m] * pp
-            hm[r, i, :m] = RV[r, row, :m].conj() * pm
-        for j, t in enumerate(GL_NODES * h):
-            et = np.exp(lr * t)
-            gl[r, j, 0, :m] = RV[r, R_SD, :m] * et
-            gl[r, j, 1, :m] = RV[r, R_SBD, :m] * et
-        f = int(np.flatnonzero(kept == n0)[0])  # the +iγ mode (first after A₀'s)
-        # its coefficient is set from the exact phase at every grid point, where the reduced
-        # form holds (unpaired, its conjugate would drift apart from it)
-        fidx[r] = f if m < nz else -1
-        ic = n0
-        fcs[r, 0] = Vir[f, ic]
-        fcs[r, 1] = Vir[f, ic + 1]
-        if r == 0:
-            imp = np.zeros(nz)
-            imp[N : 2 * N] = sys_.Minv @ sys_.X
-            D[:m] = Vir @ imp
-    for arr in (nk, lam, V, Vi, R, RV, B4, hp, hm, gl, fidx, fcs):
+        lam0, V0, Vi0, keep, w, paired, cv, cvi = _cell_modes(np.ascontiguousarray(A[:n0, :n0]))
+        cr = _regime(r, lam0, V0, Vi0, keep, w, paired, cv, cvi,
+                     np.ascontiguousarray(A[:n0, n0:]), gamma, h, r > 0,
+                     np.ascontiguousarray(R[r, :, :nz]), R_W if r == 0 else R_MU,
+                     imp if r == 0 else imp[:0], lam, V, Vi, RV, B4, hp, hm, gl, D, eh, fidx,
+                     fcs, nk)  # fmt: skip
+        cond = max(cond, cr if math.isfinite(cr) else math.inf)
+    for arr in (nk, lam, V, Vi, R, RV, B4, hp, hm, gl, eh, fidx, fcs):
         arr[2] = arr[1]
     Pin = np.zeros((2, nzm - 1, nzm))
     Qout = np.zeros((2, nzm, nzm - 1))
     Pin[:] = Pr
     Qout[:] = Qr
-    eh = np.exp(lam * h)
+    cosg, sing = _phases(n_grid)
+    return EventArrays(nzr, nk, eh, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs,
+                       cosg, sing, cond)  # fmt: skip
+
+
+@functools.lru_cache(maxsize=8)
+def _phases(n_grid: int) -> tuple[np.ndarray, np.ndarray]:
+    """cos and sin of the forcing phase at the sub-grid points (the same for every point)."""
     ang = 2.0 * math.pi * np.arange(n_grid + 1) / n_grid
     cosg = np.cos(ang)
     sing = np.sin(ang)
     cosg[n_grid], sing[n_grid] = 1.0, 0.0
-    return EventArrays(nzr, nk, eh, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs,
-                       cosg, sing, cond)  # fmt: skip
+    cosg.flags.writeable = False
+    sing.flags.writeable = False
+    return cosg, sing
