@@ -69,7 +69,7 @@ __all__ = [
 POINT_KEYS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling", "xi_b")
 
 # How long a first compilation usually takes on a 2-core machine (measured; README).
-COMPILE_SECONDS = {"event": "40–90", "exponential": "15–40", "euler": "10–30"}
+COMPILE_SECONDS = {"event": "20–60", "exponential": "15–40", "euler": "10–30"}
 
 
 def simulate_point(

@@ -103,8 +103,8 @@ class SolverSettings:
         Standard error of Γ (dB) at which the statistics of an irregular response count as
         converged.
     near_margin : float
-        ``exponential``/``event``: the cheap no-contact test keeps this fraction of a gap (or of
-        the contact force) clear.
+        ``exponential`` only: its cheap no-contact test keeps this fraction of a gap clear
+        (``event``'s cheap test is a rigorous bound and needs no margin).
     adaptive : bool
         ``exponential`` only: whole coarse steps in free flight (off: fine steps everywhere).
     early_stop : bool
