@@ -41,6 +41,28 @@ def test_stuck_regime_is_the_constrained_system(w_star):
         np.testing.assert_allclose(zdot[N : 2 * N], qdot, atol=1e-11 * scale)
 
 
+@pytest.mark.parametrize("modes", [1, 5, 30])
+@pytest.mark.parametrize("coupling", ["paper", "full"])
+def test_regime_modes_built_from_the_cells_own_reconstruct_each_regime(modes, coupling):
+    # The regimes' eigen-decompositions are assembled from the cell's own (γ_r-free) modes
+    # and the forcing oscillator's in closed form: in reduced form (one of each conjugate
+    # pair, weight folded into V) they must give back the identity and the regime matrix.
+    for g in (0.3, 1.7, 6.0):
+        s = assemble(cell(gamma_r=g, g1=0.1, g2=0.1, coupling=coupling, modes=modes))
+        ea = prepare_event(s, 64)
+        A1 = stuck_matrices(s)[0]
+        for r, A in ((0, s.augmented_matrix()), (1, A1)):
+            nz, m = A.shape[0], ea.nk[r]
+            V, Vi, lam = ea.V[r, :nz, :m], ea.Vi[r, :m, :nz], ea.lam[r, :m]
+            scale = np.max(np.abs(A))
+            np.testing.assert_allclose((V @ Vi).real, np.eye(nz), atol=1e-9)
+            np.testing.assert_allclose(((V * lam) @ Vi).real, A, atol=1e-9 * scale)
+            # the forcing mode is set from the exact phase: its coefficient of (c, s) = (1, 0)
+            f = ea.fidx[r]
+            assert f >= 0 and lam[f] == pytest.approx(1j * g)
+            np.testing.assert_allclose(ea.fcs[r], Vi[f, nz - (2 if r == 0 else 3) :][:2])
+
+
 def test_regimes_stay_well_conditioned_whatever_the_clearance():
     for g in (0.2, 1.0, 6.0):
         for gap in (0.1, 1e6, 1e12):

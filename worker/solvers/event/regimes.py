@@ -230,6 +230,17 @@ def _cell_modes(A0: np.ndarray) -> tuple:
 
 
 @njit(cache=True, nogil=True)
+def _col_l1(top, bottom, c):
+    """Σ|top[:, c]| + Σ|bottom[:, c]|: the 1-norm of column c of [top; bottom]."""
+    acc = 0.0
+    for i in range(top.shape[0]):
+        acc += abs(top[i, c])
+    for i in range(bottom.shape[0]):
+        acc += abs(bottom[i, c])
+    return acc
+
+
+@njit(cache=True, nogil=True)
 def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, R, gaprow, imp,
             lam, V, Vi, RV, B4, hp, hm, gl, D, eh, fidx, fcs, nk):  # fmt: skip
     """Fill regime r's tables for ``[[A₀, B], [0, Ω]]`` (A₀ the cell's own dynamics, with its
@@ -308,25 +319,14 @@ def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, 
             for k in range(n0):
                 acc += Vi0[i, k] * TE[k, c]
             G[i, c] = -acc
-    # condition number: column sums of V and V⁻¹
+    # condition number: the largest column sums of V and V⁻¹ (A₀'s columns cached)
     nv = cv0
-    for c in range(p):
-        acc = 0.0
-        for i in range(n0):
-            acc += abs(T[i, c])
-        for i in range(p):
-            acc += abs(E[i, c])
-        nv = max(nv, acc)
     nvi = 0.0
     for j in range(n0):
         nvi = max(nvi, cvi0[j])
     for c in range(p):
-        acc = 0.0
-        for i in range(n0):
-            acc += abs(G[i, c])
-        for i in range(p):
-            acc += abs(Ei[i, c])
-        nvi = max(nvi, acc)
+        nv = max(nv, _col_l1(T, E, c))
+        nvi = max(nvi, _col_l1(G, Ei, c))
     cond = nv * nvi
     # the kept modes: A₀'s reduced ones, then +iγ (and -iγ when unpaired), then w*'s
     m = 0
