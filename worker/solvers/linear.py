@@ -25,7 +25,7 @@ from numba import njit
 
 from worker.memo import ArrayMemo
 from worker.model import SteadyState, System, steady_state
-from worker.solvers.event.regimes import cond1, eigen
+from worker.solvers.event.regimes import cell_modes
 from worker.solvers.event.roots import STACK, STACK_COLS, first_root
 
 __all__ = ["GATE_RTOL", "LinearTail", "linear_tail", "tail_proof"]
@@ -133,18 +133,17 @@ _FREE = ArrayMemo()  # the free system's modes, per cell (γ_r does not enter th
 
 
 def _free_modes(A: np.ndarray, W: np.ndarray, N: int) -> tuple:
-    """Eigenvalues of ``A`` (one of each conjugate pair), the tip rows ``L``, the largest
-    ``Re λ``, whether the tail bound is valid (``Re λ <= 0``, V well conditioned) and whether
-    every mode decays. The decomposition is the event solver's (``regimes.eigen``)."""
-    lam, V, Vi = eigen(A)
+    """Eigenvalues of ``A`` in reduced form (``regimes.cell_modes``: one of each conjugate pair,
+    weight 2), the tip rows ``L``, the largest ``Re λ``, whether the tail bound is valid
+    (``Re λ <= 0``, V well conditioned) and whether every mode decays."""
+    lam, V, Vi, keep, weight, _, cv, cvi = cell_modes(A)
     lam_abs = float(np.max(np.abs(lam)))
     max_re = float(np.max(lam.real))
     valid = max_re <= UNDAMPED_RTOL * max(lam_abs, 1.0)
     damped = max_re < -UNDAMPED_RTOL * max(lam_abs, 1.0)
-    cond_ok = cond1(V, Vi) < 1e12
-    # One of each conjugate pair with weight 2 (Re(c e^{λt} + c̄ e^{λ̄t}) = Re(2c e^{λt})).
-    keep = lam.imag >= 0.0
-    weight = np.where(lam.imag > 0.0, 2.0, 1.0)[keep]
+    cond = cv * float(np.max(cvi))  # the 1-norm condition number of V
+    cond_ok = math.isfinite(cond) and cond < 1e12
+    # Re(c e^{λt} + c̄ e^{λ̄t}) = Re(2c e^{λt}): the weight folds a pair into one term
     WV = (W @ V[:N, :])[keep]
     L = np.ascontiguousarray((weight * WV)[:, None] * Vi[keep, :])
     return np.ascontiguousarray(lam[keep]), L, max_re, bool(valid and cond_ok), bool(damped)

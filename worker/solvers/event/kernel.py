@@ -223,7 +223,8 @@ def _phase_rot(zr, zi, rc, rs):
 def _measure_whole(r, a, nk, hp, hm, gl, h, rc, rs):
     """The harmonics and phase-portrait integrals of a whole sub-grid interval from its
     modal coefficients a (rc + i rs = e^{-iγτ} at its start). Returns (s re, s im, s_b re,
-    s_b im, ∫ṡ², ∫ṡ_b ṡ)."""
+    s_b im, ∫ṡ², ∫ṡ_b ṡ). The four Gauss nodes are unrolled into one pass over the modes
+    (a loop over the nodes made measured free flight ~10 % slower)."""
     z0 = 0.0 + 0.0j
     z1 = 0.0 + 0.0j
     v0 = v1 = v2 = v3 = 0.0
@@ -315,8 +316,10 @@ def _measure_piece(r, a, nk, lam, RV, E, ln, ph, gamma_r):
         acc0 += 0.5 * (c * p + c.conjugate() * pc)
         c = RV[r, R_SB, m] * a[m]
         acc1 += 0.5 * (c * p + c.conjugate() * pc)
-    a0, a1 = _phase_rot(acc0.real, acc0.imag, math.cos(ph), -math.sin(ph))
-    b0, b1 = _phase_rot(acc1.real, acc1.imag, math.cos(ph), -math.sin(ph))
+    rc = math.cos(ph)
+    rs = -math.sin(ph)
+    a0, a1 = _phase_rot(acc0.real, acc0.imag, rc, rs)
+    b0, b1 = _phase_rot(acc1.real, acc1.imag, rc, rs)
     # ṡ and ṡ_b at the four Gauss nodes; the nodes are symmetric, so the step from the third
     # to the fourth is the one from the first to the second (three exponentials per mode)
     t0 = ms.GL_NODES[0] * ln

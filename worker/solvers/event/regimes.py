@@ -37,7 +37,7 @@ from worker.model import System
 from worker.solvers.event.roots import cexp, phi1
 from worker.solvers.measure import GL_NODES
 
-__all__ = ["EventArrays", "eigen", "prepare_event", "stuck_matrices"]
+__all__ = ["EventArrays", "cell_modes", "eigen", "prepare_event", "stuck_matrices"]
 
 MAX_COND = 1e10  # eigenvector condition number beyond which a regime is refused
 
@@ -104,12 +104,6 @@ def eigen(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     returns them; V⁻¹ NaN for a singular V), computed once per process for each matrix.
     Callers must not modify the arrays."""
     return _MODES.get((A,), lambda: _decompose(A))
-
-
-def cond1(V: np.ndarray, Vi: np.ndarray) -> float:
-    """1-norm condition number of V from its inverse in hand (inf if it is not finite)."""
-    c = float(np.abs(V).sum(axis=0).max() * np.abs(Vi).sum(axis=0).max())
-    return c if math.isfinite(c) else math.inf
 
 
 def _stuck_blocks(M, C, K, W, X) -> tuple[np.ndarray, ...]:
@@ -205,8 +199,9 @@ def _full_rows(sys_: System) -> np.ndarray:
 _PAIRS = ArrayMemo()  # the reduced form of the cells' own modes
 
 
-def _cell_modes(A0: np.ndarray) -> tuple:
-    """The cached decomposition of a cell's own dynamics ``A₀`` and its reduced form: the kept
+def cell_modes(A0: np.ndarray) -> tuple:
+    """The cached decomposition of a cell's own dynamics ``A₀`` and its reduced form (the one
+    reduced form of the free modes: the event kernel's and the linear tail proof's): the kept
     modes (one of each conjugate pair, weight 2; real ones weight 1), whether that form
     reconstructs the identity (exact pairs, as LAPACK returns them for a real matrix; if not,
     every mode is kept with weight 1), and the 1-norms of V's columns and of V⁻¹'s columns."""
@@ -426,7 +421,7 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
     for r, A in ((0, sys_.augmented_matrix()), (1, A1)):
         nz = A.shape[0]
         n0 = nz - (2 if r == 0 else 3)
-        lam0, V0, Vi0, keep, w, paired, cv, cvi = _cell_modes(np.ascontiguousarray(A[:n0, :n0]))
+        lam0, V0, Vi0, keep, w, paired, cv, cvi = cell_modes(np.ascontiguousarray(A[:n0, :n0]))
         cr = _regime(r, lam0, V0, Vi0, keep, w, paired, cv, cvi,
                      np.ascontiguousarray(A[:n0, n0:]), gamma, h, r > 0,
                      np.ascontiguousarray(R[r, :, :nz]), R_W if r == 0 else R_MU,

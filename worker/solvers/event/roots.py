@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from worker.solvers.measure import cubic_above, cubic_minmax
@@ -81,18 +80,6 @@ def ev3(c, lam, nz, off, t):
         d += el.real
         dd += (el * lam[k]).real
     return f, d, dd
-
-
-@njit(cache=True, nogil=True)
-def ev2(c, lam, nz, t):
-    """ḟ(t) and f̈(t)."""
-    d = 0.0
-    dd = 0.0
-    for k in range(nz):
-        e = c[k] * lam[k] * cexp(lam[k] * t)
-        d += e.real
-        dd += (e * lam[k]).real
-    return d, dd
 
 
 @njit(cache=True, nogil=True)
@@ -162,7 +149,7 @@ def crit(c, lam, nz, lo, hi, dlo, dhi, guess):
     up = dlo < 0.0  # ḟ increasing through zero: a minimum
     t = guess if lo < guess < hi else 0.5 * (lo + hi)
     for _ in range(100):
-        d, dd = ev2(c, lam, nz, t)
+        _, d, dd = ev3(c, lam, nz, 0.0, t)
         if (d < 0.0) == up:
             a = t
         else:
@@ -627,12 +614,3 @@ def phi1(x, ln):
     if z.real * z.real + z.imag * z.imag < 1e-6:  # |z| < 1e-3 without a hypot
         return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
     return (cexp(z) - 1.0) / x
-
-
-@njit(cache=True, nogil=True)
-def phi1_each(xs, ln):
-    """:func:`phi1` of every entry of ``xs`` (one call from Python, not one per entry)."""
-    out = np.empty(len(xs), dtype=np.complex128)
-    for i in range(len(xs)):
-        out[i] = phi1(xs[i], ln)
-    return out
