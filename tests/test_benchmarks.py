@@ -32,3 +32,48 @@ def test_work_precision_quick_runs(tmp_path: Path) -> None:
     points = (tmp_path / "work_precision_points.csv").read_text().splitlines()
     assert len(points) > 1
     assert (tmp_path / "work_precision.png").stat().st_size > 0
+
+
+def _load(name: str):
+    path = ROOT / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"{name}_smoke", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_profile_kernels_names_and_arguments() -> None:
+    prof = _load("profile_kernels")
+    # numba's mangled names: length-prefixed parts, the last two kept
+    name = "_ZN6worker7solvers5event6kernel12event_kernelB3v12B40c8tJTIeFIjxB2IKSgI4CrvQE"
+    assert prof._demangle(name) == "kernel.event_kernel"
+    assert prof._demangle("plain_symbol") == "plain_symbol"
+    assert prof._points("A:2.2,C:0.5") == [("A", 2.2), ("C", 0.5)]
+    with pytest.raises(SystemExit, match="case:gamma_r"):
+        prof._points("D:1.0")
+    with pytest.raises(SystemExit, match="case:gamma_r"):
+        prof._points("A")
+    assert prof._group("[JIT] tid 12  [.] roots.ev") == "compiled (numba)"
+    assert prof._group("libm.so.6  [.] __sincos_fma") == "libm (exp, sincos)"
+    assert prof._group("libc.so.6  [.] malloc") == "other"
+
+
+@pytest.mark.slow
+def test_profile_kernels_maps_the_compiled_kernels(tmp_path: Path) -> None:
+    prof = _load("profile_kernels")
+    from worker.model import CellParams
+    from worker.simulate import simulate_point
+
+    # a point that simulates: it loads the event kernel
+    simulate_point(CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.3, g1=0.1, g2=0.1))
+    out = tmp_path / "perf.map"
+    n = prof.write_perf_map(out)
+    lines = out.read_text().splitlines()
+    assert n == len(lines) > 10
+    names = {ln.split(" ", 2)[2] for ln in lines}
+    assert {"kernel.event_kernel", "roots.ev"} <= names
+    starts = [int(ln.split()[0], 16) for ln in lines]
+    sizes = [int(ln.split()[1], 16) for ln in lines]
+    assert starts == sorted(starts) and all(s > 0 for s in sizes)
+    # each function ends where the next begins (perf attributes a sample to one function)
+    assert all(a + s <= b for a, s, b in zip(starts[:-1], sizes[:-1], starts[1:], strict=True))

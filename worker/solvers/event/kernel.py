@@ -120,6 +120,49 @@ def _step(a, E, nk, out):
         out[k] = z
 
 
+@njit(cache=True, nogil=True, fastmath=FAST)
+def _ends(RV, B4, lam, eh, r, row, al, ae, nk):
+    """One pass over the modes for a whole sub-grid interval of regime r: ``ae = al ∘ e^{λh}``
+    (as :func:`_step`), the observable ``row`` and its slope (``row + 1``), s and ṡ at the
+    interval's end, the fourth derivative's bound and the size of the sum from ``al``
+    (``Σ|RV_k||λ_k|⁴|a_k|``, ``Σ|RV_k||a_k|``, growing modes at the end) and
+    :func:`_magnitude` of ``ae``. (Seven passes before, each reloading the coefficients.)"""
+    big = 0.0
+    f1 = 0.0
+    fd1 = 0.0
+    s1 = 0.0
+    sd1 = 0.0
+    b = 0.0
+    sc = 0.0
+    for k in range(nk):
+        a = al[k]
+        e = eh[r, k]
+        z = a * e
+        mz = abs(z.real) + abs(z.imag)
+        if mz < TINY:
+            z = 0.0 + 0.0j
+            mz = 0.0
+        if mz > big:
+            big = mz
+        elif mz != mz:  # NaN: not finite (inf is caught by the comparison)
+            big = math.inf
+        ae[k] = z
+        v = RV[r, row, k]
+        f1 += v.real * z.real - v.imag * z.imag
+        w = RV[r, row + 1, k]
+        fd1 += w.real * z.real - w.imag * z.imag
+        u = RV[r, R_S, k]
+        s1 += u.real * z.real - u.imag * z.imag
+        u = RV[r, R_SD, k]
+        sd1 += u.real * z.real - u.imag * z.imag
+        m = abs(a.real) + abs(a.imag)
+        if lam[r, k].real > 0.0:
+            m *= abs(e.real) + abs(e.imag)
+        b += B4[r, k] * m
+        sc += (abs(v.real) + abs(v.imag)) * m
+    return f1, fd1, s1, sd1, b, sc, big
+
+
 @njit(cache=True, nogil=True)
 def _coef(RV, r, row, a, nk, sgn, c):
     for k in range(nk):
@@ -140,23 +183,6 @@ def _row_scale(R, r, row, y, nz):
     for i in range(nz):
         acc += abs(R[r, row, i] * y[i])
     return acc
-
-
-@njit(cache=True, nogil=True, fastmath=FAST)
-def _bound(B4, RV, r, row, a, eh, lam, nk):
-    """(Σ_k |RV_k||λ_k|⁴|a_k|, Σ_k |RV_k||a_k|) over an interval from its start (growing modes
-    at its end), with |a| <= |Re a| + |Im a|: the fourth derivative's bound and the size of
-    the sum (its round-off scale)."""
-    b = 0.0
-    s = 0.0
-    for k in range(nk):
-        m = abs(a[k].real) + abs(a[k].imag)
-        if lam[r, k].real > 0.0:
-            m *= abs(eh[r, k].real) + abs(eh[r, k].imag)
-        b += B4[r, k] * m
-        v = RV[r, row, k]
-        s += (abs(v.real) + abs(v.imag)) * m
-    return b, s
 
 
 @njit(cache=True, nogil=True)
@@ -536,12 +562,17 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         nsteps = ncoarse = nimpacts = imp1 = imp2 = peak = 0.0
         last = -1.0
+        known = -1.0  # _magnitude(al) where already known (the forcing phase is reset below)
         for j in range(n_grid):
             t = 0.0
             while True:
                 nz = nzr[r]
                 nkr = nk[r]
-                big = _magnitude(al, nkr)
+                if known >= 0.0:  # al's magnitude, from the interval that produced it
+                    big = known
+                    known = -1.0
+                else:
+                    big = _magnitude(al, nkr)
                 if big > MAX_STATE:
                     failed = ms.END_DIVERGED if math.isfinite(big) else ms.END_NONFINITE
                     break
@@ -603,38 +634,23 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     break
                 # ---- the cheap test on a whole interval
                 if t == 0.0 and not skip_on:
-                    _step(al, eh[r], nkr, ae)
-                    f1 = fd1 = 0.0
+                    row = R_W if r == 0 else R_MU
+                    if not have:
+                        f0 = _rowa(RV, r, row, al, nkr)
+                        fd0 = _rowa(RV, r, row + 1, al, nkr)
+                        s0 = _rowa(RV, r, R_S, al, nkr)
+                        sd0 = _rowa(RV, r, R_SD, al, nkr)
+                        have = True
+                    f1, fd1, s1, sd1, b4, sc, big_e = _ends(RV, B4, lam, eh, r, row, al, ae, nkr)
                     if r == 0:
-                        if not have:
-                            f0 = _rowa(RV, 0, R_W, al, nkr)
-                            fd0 = _rowa(RV, 0, R_WD, al, nkr)
-                            s0 = _rowa(RV, 0, R_S, al, nkr)
-                            sd0 = _rowa(RV, 0, R_SD, al, nkr)
-                            have = True
-                        f1 = _rowa(RV, 0, R_W, ae, nkr)
-                        fd1 = _rowa(RV, 0, R_WD, ae, nkr)
-                        b4, sc = _bound(B4, RV, 0, R_W, al, eh, lam, nkr)
                         quick = ms.cubic_inside(f0, fd0, f1, fd1, h, -g2, g1, b4 * h4 + PAD * sc)
+                    elif bilateral:
+                        quick = True
                     else:
-                        if not have:
-                            f0 = _rowa(RV, r, R_MU, al, nkr)
-                            fd0 = _rowa(RV, r, R_MUD, al, nkr)
-                            s0 = _rowa(RV, r, R_S, al, nkr)
-                            sd0 = _rowa(RV, r, R_SD, al, nkr)
-                            have = True
-                        if bilateral:
-                            quick = True
-                        else:
-                            f1 = _rowa(RV, r, R_MU, ae, nkr)
-                            fd1 = _rowa(RV, r, R_MUD, ae, nkr)
-                            sgn = -1.0 if r == 1 else 1.0
-                            b4, sc = _bound(B4, RV, r, R_MU, al, eh, lam, nkr)
-                            quick = ms.cubic_above(sgn * f0, sgn * fd0, sgn * f1, sgn * fd1, h,
-                                                   b4 * h4, PAD * sc)  # fmt: skip
+                        sgn = -1.0 if r == 1 else 1.0
+                        quick = ms.cubic_above(sgn * f0, sgn * fd0, sgn * f1, sgn * fd1, h,
+                                               b4 * h4, PAD * sc)  # fmt: skip
                     if quick:
-                        s1 = _rowa(RV, r, R_S, ae, nkr)
-                        sd1 = _rowa(RV, r, R_SD, ae, nkr)
                         lo, hi = _s_range(r, al, nkr, lam, RV, h, s0, sd0, s1, sd1, measure,
                                           tol_t, cw)  # fmt: skip
                         smax = max(smax, hi)
@@ -659,6 +675,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                                               fd1, cw)  # fmt: skip
                         for q in range(nkr):
                             al[q] = ae[q]
+                        known = big_e
                         f0 = f1
                         fd0 = fd1
                         s0 = s1
