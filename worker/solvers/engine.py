@@ -255,6 +255,18 @@ def _fold_rows(rows: np.ndarray, cur: np.ndarray, count: int) -> bool:
 
 
 @njit(cache=True, nogil=True)
+def _work_sums(rows: np.ndarray) -> tuple[float, float, float]:
+    """Steps, contact steps and coarse steps of a batch of period rows (whole numbers: any
+    summation order gives the same)."""
+    steps = contact = coarse = 0.0
+    for i in range(rows.shape[0]):
+        steps += rows[i, ms.M_STEPS]
+        contact += rows[i, ms.M_CONTACT]
+        coarse += rows[i, ms.M_COARSE]
+    return steps, contact, coarse
+
+
+@njit(cache=True, nogil=True)
 def _push_recent(recent: np.ndarray, imp: np.ndarray, reg: np.ndarray, rows: np.ndarray,
                  samples: np.ndarray) -> None:  # fmt: skip
     """Append a batch's stroboscopic samples, impacts and end regimes to the newest-last
@@ -271,6 +283,34 @@ def _push_recent(recent: np.ndarray, imp: np.ndarray, reg: np.ndarray, rows: np.
         recent[size - k + i] = samples[src]
         imp[size - k + i] = rows[src, ms.M_IMP1] + rows[src, ms.M_IMP2]
         reg[size - k + i] = rows[src, ms.M_REGIME]
+
+
+@njit(cache=True, nogil=True)
+def _max_diff(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| (exact: no rounding but the differences')."""
+    m = 0.0
+    for i in range(a.shape[0]):
+        m = max(m, abs(a[i] - b[i]))
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _converging_p(r: np.ndarray, max_period: int) -> int:
+    """:meth:`_Engine._converging` on the full buffer ``r`` of stroboscopic samples (newest
+    last). Compiled: its ~60 small numpy calls cost ~100 µs a check."""
+    n = r.shape[0]
+    scale = 0.0
+    for i in range(r.shape[1]):
+        scale = max(scale, abs(r[n - 1, i]))
+    if scale == 0.0:
+        scale = 1.0
+    half = n // 2
+    for p in range(1, max_period + 1):
+        now = _max_diff(r[n - 1], r[n - 1 - p])
+        before = _max_diff(r[n - 1 - half], r[n - 1 - half - p])
+        if now <= 1e-6 * scale or now <= 1e-2 * before:
+            return p
+    return 0
 
 
 @dataclass
@@ -371,7 +411,7 @@ class _Engine:
 
     def _absorb(self, rows: np.ndarray, samples: np.ndarray, main: bool) -> None:
         n = len(rows)
-        steps, contact, coarse = rows[:, ms.M_STEPS : ms.M_COARSE + 1].sum(axis=0)
+        steps, contact, coarse = _work_sums(rows)
         self.work["periods"] += n
         self.work["steps"] += int(steps)
         self.work["contact_steps"] += int(contact)
@@ -476,8 +516,8 @@ class _Engine:
         if self.nrecent < 2 * p + 1:
             return None
         r = self.recent
-        d1 = np.max(np.abs(r[-1] - r[-1 - p]))
-        d2 = np.max(np.abs(r[-1 - p] - r[-1 - 2 * p]))
+        d1 = _max_diff(r[-1], r[-1 - p])
+        d2 = _max_diff(r[-1 - p], r[-1 - 2 * p])
         return float(d1 / d2) if d2 > 0.0 else 0.0
 
     def _measure_orbit(self, x0: np.ndarray, p: int, rho: float | None) -> _Orbit | None:
@@ -496,7 +536,9 @@ class _Engine:
         # newest first: sample indices p apart; keep those on the newest sample's branch of the
         # map (same impacts over the p periods before it, same contact state at it)
         idx = list(range(RECENT - 1, RECENT - 1 - p * min(avail, MAX_RRE), -p))
-        blocks = [self.recent_imp[i - p + 1 : i + 1].sum() for i in idx]
+        # impacts over the p periods before each (whole numbers: the differences are exact)
+        cum = np.cumsum(self.recent_imp).tolist()
+        blocks = [cum[i] - (cum[i - p] if i >= p else 0.0) for i in idx]
         regs = [self.recent_reg[i] for i in idx]
         keep = 1
         while keep < len(idx) and blocks[keep] == blocks[0] and regs[keep] == regs[0]:
@@ -504,7 +546,7 @@ class _Engine:
         if keep < 3:
             return None
         X = self.recent[idx[:keep][::-1]]
-        d1 = float(np.max(np.abs(X[-1] - X[-2])))
+        d1 = _max_diff(X[-1], X[-2])
         fit = rre(X)
         if fit is None or fit[2] > MAX_FIT or fit[1] >= 0.999:
             return None  # the sequence is not (yet) a linear contraction: no side runs
@@ -525,16 +567,16 @@ class _Engine:
                     return None
                 rows, samples = got
                 scale = float(np.max(np.abs(xs)))
-                r = float(np.max(np.abs(samples[-1] - xs)))
+                r = _max_diff(samples[-1], xs)
                 if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() != blocks[0]:
                     return None  # another branch of the map: not the orbit being approached
                 if r <= self.s.periodicity_tol * scale * (1.0 - rho):
-                    e = float(np.max(np.abs(X[-1] - xs)))
+                    e = _max_diff(X[-1], xs)
                     # where the trajectory's own contraction is heading (10× slack)
                     if e <= 10.0 * d1 / (1.0 - rho) + self.s.periodicity_tol * scale:
                         # a p-periodic fixed point may be q-periodic, q | p
                         q = next(q for q in range(1, p + 1) if p % q == 0 and (
-                            q == p or np.max(np.abs(samples[q - 1] - xs))
+                            q == p or _max_diff(samples[q - 1], xs)
                             <= 10.0 * self.s.periodicity_tol * scale))  # fmt: skip
                         measured = self._side_run(xs, p)
                         if measured is None:
@@ -585,15 +627,7 @@ class _Engine:
         state: the response is approaching (or is) a period-p orbit, not irregular (0: none)."""
         if self.nrecent < RECENT:
             return 0
-        r = self.recent
-        scale = float(np.max(np.abs(r[-1]))) or 1.0
-        half = RECENT // 2
-        for p in range(1, ms.MAX_PERIOD + 1):
-            now = float(np.max(np.abs(r[-1] - r[-1 - p])))
-            before = float(np.max(np.abs(r[-1 - half] - r[-1 - half - p])))
-            if now <= 1e-6 * scale or now <= 1e-2 * before:
-                return p
-        return 0
+        return int(_converging_p(self.recent, ms.MAX_PERIOD))
 
     def _coexistence_note(self) -> str:
         """Irregular motion where the impact-free steady state is also admissible may be
