@@ -3,13 +3,14 @@
     python benchmarks/profile_kernels.py [--points A:2.2,B:1.030769] [--seconds 8] [--top 30]
 
 Runs the given points of the point-engine benchmark (``case:gamma_r``, cases A, B, C of
-``point_engine.py``) over and over for ``--seconds`` under ``perf record``, then prints the
-share of samples per function. Numba's compiled code has no symbols perf can see, so before it
-exits the profiled process writes ``/tmp/perf-<pid>.map`` (perf's map of JIT code): the address
-of every function numba's JIT engine holds, each up to the next one. Helpers LLVM inlined are
-counted in their caller. ``libm``'s ``__sincos``/``exp`` rows are the transcendental functions
-called from the kernels (``cexp``). Needs ``perf`` (linux-tools); without it the script says so
-and exits 2.
+``point_engine.py``) once each, then over and over for ``--seconds`` with ``perf record``
+attached (imports, compilation and the first runs are not sampled), and prints the share of
+samples per part of the process and per function. Numba's compiled code has no symbols perf
+can see, so the process writes ``/tmp/perf-<pid>.map`` (perf's map of JIT code) before perf
+stops: the address of every function numba's JIT engine holds, each up to the next one.
+Helpers LLVM inlined are counted in their caller. ``libm``'s ``__sincos``/``exp`` rows are the
+exponentials the kernels evaluate (``roots.cexp``). Needs ``perf`` (linux-tools); without it
+the script says so and exits 2.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import argparse
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -80,8 +82,11 @@ def write_perf_map(path: Path) -> int:
     return len(addrs)
 
 
-def child(points: list[tuple[str, float]], seconds: float) -> None:
-    """The profiled process: run the points for ``seconds``, then write the perf map."""
+def run_profiled(points: list[tuple[str, float]], seconds: float, perf: str,
+                 data: Path) -> int:  # fmt: skip
+    """Load the kernels and run each point once (not sampled), then run the points over and
+    over for ``seconds`` with ``perf record`` attached to this process, and write the perf map
+    before perf stops. Returns perf's exit status."""
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from point_engine import cell
@@ -90,8 +95,10 @@ def child(points: list[tuple[str, float]], seconds: float) -> None:
 
     settings = SolverSettings()
     cells = [cell(c, g) for c, g in points]
-    for p in cells:  # compile / load before the samples that count
+    for p in cells:  # compiling, loading and imports are not what is measured
         simulate_point(p, settings)
+    rec = subprocess.Popen([perf, "record", "-q", "-p", str(os.getpid()), "-o", str(data)])
+    time.sleep(0.5)  # perf attaches
     t0 = time.perf_counter()
     runs = 0
     while time.perf_counter() - t0 < seconds:
@@ -99,7 +106,10 @@ def child(points: list[tuple[str, float]], seconds: float) -> None:
             simulate_point(p, settings)
         runs += 1
     n = write_perf_map(Path(f"/tmp/perf-{os.getpid()}.map"))
-    print(f"{runs} passes over {len(cells)} points; {n} compiled functions mapped", flush=True)
+    rec.send_signal(signal.SIGINT)
+    code = rec.wait()
+    print(f"{runs} passes over {len(cells)} points sampled; {n} compiled functions mapped")
+    return code
 
 
 def _group(line: str) -> str:
@@ -117,22 +127,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--points", default=DEFAULT_POINTS, help="case:gamma_r, comma separated")
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--top", type=int, default=30)
-    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     points = _points(args.points)
-    if args.child:
-        child(points, args.seconds)
-        return 0
     perf = shutil.which("perf")
     if perf is None:
         print("profile_kernels: perf is not installed (linux-tools)", file=sys.stderr)
         return 2
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy loads its BLAS (tiny matrices)
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "perf.data"
-        cmd = [perf, "record", "-q", "-o", str(data), sys.executable, __file__, "--child",
-               "--points", args.points, "--seconds", str(args.seconds)]  # fmt: skip
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
-        if subprocess.run(cmd, env=env).returncode != 0:
+        if run_profiled(points, args.seconds, perf, data) not in (0, -signal.SIGINT):
             print("profile_kernels: perf record failed", file=sys.stderr)
             return 2
         rep = subprocess.run(
@@ -151,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         head, _, sym = ln.partition("[.]")
         pct, _, dso = head.strip().partition(" ")
         dso = "[JIT]" if "[JIT]" in dso else Path(dso.strip()).name
-        print(f"{pct:>8}  {dso[:24]:24}  {sym.strip()[:70]}")
+        sym = re.sub(r"(\s+-)+\s*$", "", sym).strip()  # empty columns of a -p recording
+        print(f"{pct:>8}  {dso[:24]:24}  {sym[:70]}")
     return 0
 
 
