@@ -16,6 +16,7 @@ the script says so and exits 2.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import shutil
@@ -34,9 +35,16 @@ def _points(spec: str) -> list[tuple[str, float]]:
     out = []
     for item in spec.split(","):
         case, _, g = item.partition(":")
-        if case not in ("A", "B", "C") or not g:
-            raise SystemExit(f"--points: expected case:gamma_r with case A, B or C, got {item!r}")
-        out.append((case, float(g)))
+        try:
+            gamma_r = float(g)
+        except ValueError:
+            gamma_r = math.nan
+        if case not in ("A", "B", "C") or not gamma_r > 0.0 or math.isinf(gamma_r):
+            raise SystemExit(
+                f"--points: expected case:gamma_r with case A, B or C and gamma_r a positive "
+                f"number, got {item!r}"
+            )
+        out.append((case, gamma_r))
     return out
 
 
@@ -128,6 +136,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--top", type=int, default=30)
     args = ap.parse_args(argv)
+    if not 0.0 < args.seconds < math.inf:
+        ap.error(f"--seconds must be a positive number, got {args.seconds}")
+    if args.top < 1:
+        ap.error(f"--top must be at least 1, got {args.top}")
     points = _points(args.points)
     perf = shutil.which("perf")
     if perf is None:

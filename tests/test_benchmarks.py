@@ -51,8 +51,13 @@ def test_profile_kernels_names_and_arguments() -> None:
     assert prof._points("A:2.2,C:0.5") == [("A", 2.2), ("C", 0.5)]
     with pytest.raises(SystemExit, match="case:gamma_r"):
         prof._points("D:1.0")
-    with pytest.raises(SystemExit, match="case:gamma_r"):
-        prof._points("A")
+    for bad in ("A", "A:x", "B:-1", "C:inf"):
+        with pytest.raises(SystemExit, match="case:gamma_r"):
+            prof._points(bad)
+    for argv in (["--seconds", "0"], ["--top", "0"]):
+        with pytest.raises(SystemExit) as exc:  # argparse's error, before perf runs
+            prof.main(argv)
+        assert exc.value.code == 2
     assert prof._group("[JIT] tid 12  [.] roots.ev") == "compiled (numba)"
     assert prof._group("libm.so.6  [.] __sincos_fma") == "libm (exp, sincos)"
     assert prof._group("libc.so.6  [.] malloc") == "other"
