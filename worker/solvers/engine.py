@@ -518,7 +518,7 @@ class _Engine:
         r = self.recent
         d1 = _max_diff(r[-1], r[-1 - p])
         d2 = _max_diff(r[-1 - p], r[-1 - 2 * p])
-        return float(d1 / d2) if d2 > 0.0 else 0.0
+        return d1 / d2 if d2 > 0.0 else 0.0
 
     def _measure_orbit(self, x0: np.ndarray, p: int, rho: float | None) -> _Orbit | None:
         snap = self.run.save()

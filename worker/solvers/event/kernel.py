@@ -76,6 +76,13 @@ EV_COLS = len(EVENT_FIELDS)
 # ----------------------------------------------------------------------------- state helpers
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _re_mul(v, a):
+    """Re(v·a) without forming the product's imaginary part: the one term of every
+    observable ``Re Σ v_k a_k`` of modal coefficients."""
+    return v.real * a.real - v.imag * a.imag
+
+
 @njit(cache=True, nogil=True, fastmath=FAST)
 def _modal(Vi, r, y, nk, nz, a):
     """a = V⁻¹ y (the kept rows): a regime state's modal coefficients."""
@@ -92,8 +99,7 @@ def _state(V, r, a, nk, nz, out):
     for i in range(nz):
         acc = 0.0
         for k in range(nk):
-            v = V[r, i, k]
-            acc += v.real * a[k].real - v.imag * a[k].imag
+            acc += _re_mul(V[r, i, k], a[k])
         out[i] = acc
 
 
@@ -102,8 +108,7 @@ def _rowa(RV, r, row, a, nk):
     """Re Σ RV_k a_k: an observable of modal coefficients a."""
     acc = 0.0
     for k in range(nk):
-        v = RV[r, row, k]
-        acc += v.real * a[k].real - v.imag * a[k].imag
+        acc += _re_mul(RV[r, row, k], a[k])
     return acc
 
 
@@ -148,13 +153,10 @@ def _ends(RV, B4, lam, eh, r, row, al, ae, nk):
             big = math.inf
         ae[k] = z
         v = RV[r, row, k]
-        f1 += v.real * z.real - v.imag * z.imag
-        w = RV[r, row + 1, k]
-        fd1 += w.real * z.real - w.imag * z.imag
-        u = RV[r, R_S, k]
-        s1 += u.real * z.real - u.imag * z.imag
-        u = RV[r, R_SD, k]
-        sd1 += u.real * z.real - u.imag * z.imag
+        f1 += _re_mul(v, z)
+        fd1 += _re_mul(RV[r, row + 1, k], z)
+        s1 += _re_mul(RV[r, R_S, k], z)
+        sd1 += _re_mul(RV[r, R_SD, k], z)
         m = abs(a.real) + abs(a.imag)
         if lam[r, k].real > 0.0:
             m *= abs(e.real) + abs(e.imag)
@@ -259,24 +261,14 @@ def _measure_whole(r, a, nk, hp, hm, gl, h, rc, rs):
         ak = a[k]
         z0 += ak * hp[r, 0, k] + ak.conjugate() * hm[r, 0, k]
         z1 += ak * hp[r, 1, k] + ak.conjugate() * hm[r, 1, k]
-        ar = ak.real
-        ai = ak.imag
-        g = gl[r, 0, 0, k]
-        v0 += g.real * ar - g.imag * ai
-        g = gl[r, 0, 1, k]
-        q0 += g.real * ar - g.imag * ai
-        g = gl[r, 1, 0, k]
-        v1 += g.real * ar - g.imag * ai
-        g = gl[r, 1, 1, k]
-        q1 += g.real * ar - g.imag * ai
-        g = gl[r, 2, 0, k]
-        v2 += g.real * ar - g.imag * ai
-        g = gl[r, 2, 1, k]
-        q2 += g.real * ar - g.imag * ai
-        g = gl[r, 3, 0, k]
-        v3 += g.real * ar - g.imag * ai
-        g = gl[r, 3, 1, k]
-        q3 += g.real * ar - g.imag * ai
+        v0 += _re_mul(gl[r, 0, 0, k], ak)
+        q0 += _re_mul(gl[r, 0, 1, k], ak)
+        v1 += _re_mul(gl[r, 1, 0, k], ak)
+        q1 += _re_mul(gl[r, 1, 1, k], ak)
+        v2 += _re_mul(gl[r, 2, 0, k], ak)
+        q2 += _re_mul(gl[r, 2, 1, k], ak)
+        v3 += _re_mul(gl[r, 3, 0, k], ak)
+        q3 += _re_mul(gl[r, 3, 1, k], ak)
     a0, a1 = _phase_rot(z0.real, z0.imag, rc, rs)
     b0, b1 = _phase_rot(z1.real, z1.imag, rc, rs)
     w = ms.GL_WEIGHTS
