@@ -236,6 +236,23 @@ def _col_l1(top, bottom, c):
 
 
 @njit(cache=True, nogil=True)
+def _resolvent(V0, Vi0, lam0, b, mu, u, T, c):
+    """T[:, c] = (μ - A₀)⁻¹ b through A₀'s modes, ``V₀ (V₀⁻¹ b / (μ - λ₀))`` (u is scratch):
+    the cell's part of the oscillator's eigenvector for eigenvalue μ with forcing column b."""
+    n0 = lam0.shape[0]
+    for i in range(n0):
+        acc = 0j
+        for j in range(n0):
+            acc += Vi0[i, j] * b[j]
+        u[i] = acc / (mu - lam0[i])
+    for i in range(n0):
+        acc = 0j
+        for k in range(n0):
+            acc += V0[i, k] * u[k]
+        T[i, c] = acc
+
+
+@njit(cache=True, nogil=True)
 def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, R, gaprow, imp,
             lam, V, Vi, RV, B4, hp, hm, gl, D, eh, fidx, fcs, nk):  # fmt: skip
     """Fill regime r's tables for ``[[A₀, B], [0, Ω]]`` (A₀ the cell's own dynamics, with its
@@ -259,28 +276,16 @@ def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, 
         E[2, 2] = 1.0
     T = np.zeros((n0, p), dtype=np.complex128)
     u = np.zeros(n0, dtype=np.complex128)
+    b = np.empty(n0, dtype=np.complex128)
+    for j in range(n0):
+        b[j] = B[j, 0] - 1j * B[j, 1]
+    _resolvent(V0, Vi0, lam0, b, 1j * gamma, u, T, 0)
     for i in range(n0):
-        acc = 0j
-        for j in range(n0):
-            acc += Vi0[i, j] * (B[j, 0] - 1j * B[j, 1])
-        u[i] = acc / (1j * gamma - lam0[i])
-    for i in range(n0):
-        acc = 0j
-        for k in range(n0):
-            acc += V0[i, k] * u[k]
-        T[i, 0] = acc
-        T[i, 1] = acc.conjugate()
+        T[i, 1] = T[i, 0].conjugate()
     if stuck:
-        for i in range(n0):
-            acc = 0j
-            for j in range(n0):
-                acc += Vi0[i, j] * B[j, 2]
-            u[i] = acc / (0.0 - lam0[i])
-        for i in range(n0):
-            acc = 0j
-            for k in range(n0):
-                acc += V0[i, k] * u[k]
-            T[i, 2] = acc
+        for j in range(n0):
+            b[j] = B[j, 2]
+        _resolvent(V0, Vi0, lam0, b, 0j, u, T, 2)
     for c in range(p):  # unit columns
         sq = 0.0
         for i in range(n0):
