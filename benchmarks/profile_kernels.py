@@ -113,7 +113,7 @@ def run_profiled(points: list[tuple[str, float]], seconds: float, perf: str,
         for p in cells:
             simulate_point(p, settings)
         runs += 1
-    n = write_perf_map(Path(f"/tmp/perf-{os.getpid()}.map"))
+    n = write_perf_map(Path(f"/tmp/perf-{os.getpid()}.map"))  # removed by main after the report
     rec.send_signal(signal.SIGINT)
     code = rec.wait()
     print(f"{runs} passes over {len(cells)} points sampled; {n} compiled functions mapped")
@@ -146,20 +146,25 @@ def main(argv: list[str] | None = None) -> int:
         print("profile_kernels: perf is not installed (linux-tools)", file=sys.stderr)
         return 2
     os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy loads its BLAS (tiny matrices)
-    with tempfile.TemporaryDirectory() as tmp:
-        data = Path(tmp) / "perf.data"
-        if run_profiled(points, args.seconds, perf, data) not in (0, -signal.SIGINT):
-            print("profile_kernels: perf record failed", file=sys.stderr)
-            return 2
-        rep = subprocess.run(
-            [perf, "report", "-i", str(data), "--no-children", "--sort", "dso,symbol", "--stdio"],
-            capture_output=True, text=True,
-        )  # fmt: skip
+    perf_map = Path(f"/tmp/perf-{os.getpid()}.map")  # where perf looks for it
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            data = Path(tmp) / "perf.data"
+            if run_profiled(points, args.seconds, perf, data) not in (0, -signal.SIGINT):
+                print("profile_kernels: perf record failed", file=sys.stderr)
+                return 2
+            rep = subprocess.run(
+                [perf, "report", "-i", str(data), "--no-children", "--sort", "dso,symbol",
+                 "--stdio"], capture_output=True, text=True,
+            )  # fmt: skip
+    finally:
+        perf_map.unlink(missing_ok=True)
     rows = [ln for ln in rep.stdout.splitlines() if re.match(r"\s+\d+\.\d+%", ln)]
     groups: dict[str, float] = {}
     for ln in rows:
         pct, _, rest = ln.strip().partition("%")
-        groups[_group(rest)] = groups.get(_group(rest), 0.0) + float(pct)
+        part = _group(rest)
+        groups[part] = groups.get(part, 0.0) + float(pct)
     print("share of samples by part: " + ", ".join(
         f"{k} {v:.1f} %" for k, v in sorted(groups.items(), key=lambda kv: -kv[1])))  # fmt: skip
     print(f"share of samples, top {args.top} ([JIT] = compiled by numba):")
