@@ -171,6 +171,17 @@ def _coef(RV, r, row, a, nk, sgn, c):
         c[k] = sgn * RV[r, row, k] * a[k]
 
 
+@njit(cache=True, nogil=True)
+def _impulse(RV, r, a, nk, lam, ln, cw):
+    """The contact impulse ∫ μ dt over a piece of length ln of stuck regime r (modal
+    coefficients a at its start), for histories."""
+    _coef(RV, r, R_MU, a, nk, -1.0 if r == 1 else 1.0, cw)
+    il = 0.0
+    for k in range(nk):
+        il += (cw[k] * rt.phi1(lam[r, k], ln)).real
+    return il
+
+
 @njit(cache=True, nogil=True, fastmath=FAST)
 def _row(R, r, row, y, nz):
     acc = 0.0
@@ -657,11 +668,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             h3 += d3_
                             vv += dv
                             vb += db
-                        il = 0.0
-                        if record and r != 0:
-                            _coef(RV, r, R_MU, al, nkr, -1.0 if r == 1 else 1.0, cw)
-                            for kq in range(nkr):
-                                il += (cw[kq] * rt.phi1(lam[r, kq], h)).real
+                        il = _impulse(RV, r, al, nkr, lam, h, cw) if record and r != 0 else 0.0
                         if r == 0 and contact != 0:
                             contact = _opened(contact, al, h, RV, lam, nkr, g1, g2, f0, fd0, f1,
                                               fd1, cw)  # fmt: skip
@@ -764,11 +771,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     h3 += d3_
                     vv += dv
                     vb += db
-                il = 0.0
-                if record and r != 0:
-                    _coef(RV, r, R_MU, al, nkr, -1.0 if r == 1 else 1.0, cw)
-                    for kq in range(nkr):
-                        il += (cw[kq] * rt.phi1(lam[r, kq], lp)).real
+                il = _impulse(RV, r, al, nkr, lam, lp, cw) if record and r != 0 else 0.0
                 if r == 0 and contact != 0:
                     contact = _opened(contact, al, lp, RV, lam, nkr, g1, g2,
                                       _rowa(RV, 0, R_W, al, nkr), _rowa(RV, 0, R_WD, al, nkr),
