@@ -369,6 +369,8 @@ def test_worker_and_api_reach_the_scheduler_port() -> None:
     addresses = [a for a in worker[2:] if "://" in a]
     assert addresses == [f"tcp://scheduler:{port}"], worker
     assert _option(worker, "--nthreads") == "1" and _option(worker, "--nworkers") == "1"
+    # The nanny pins the CPU target before it starts the worker process (worker/cpu.py).
+    assert _option(worker, "--preload-nanny") == "worker"
     api = _argv(_service("api")["command"])
     assert _option(api, "--scheduler") == f"tcp://scheduler:{port}"
 

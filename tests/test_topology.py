@@ -30,6 +30,7 @@ from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from tests.service.helpers import comparable, tiny_study
+from worker import cpu
 
 # scheduler, workers and the API as separate processes: the slow tier
 pytestmark = pytest.mark.slow
@@ -152,7 +153,7 @@ class Topology:
             f"worker{self._n}",
             [sys.executable, "-m", "dask", "worker", self.scheduler, "--nthreads", "1",
              "--nworkers", "1", "--no-dashboard", "--local-directory",
-             str(self.tmp / f"worker{self._n}-space")],
+             str(self.tmp / f"worker{self._n}-space"), "--preload-nanny", "worker"],
         )  # fmt: skip
         self.workers.append(w)
         return w
@@ -192,8 +193,12 @@ class Topology:
 
 
 def _clean_env() -> dict[str, str]:
-    # No IMPACTCELL_* setting of the caller's (token, database, scheduler) leaks in.
-    return {k: v for k, v in os.environ.items() if not k.startswith("IMPACTCELL_")}
+    # No IMPACTCELL_* setting of the caller's (token, database, scheduler) leaks in, nor the
+    # CPU pin the test process inherited: each process must pin it itself, as in compose.
+    pins = (cpu.BLAS_ENV, cpu.NUMBA_ENV)
+    return {
+        k: v for k, v in os.environ.items() if not k.startswith("IMPACTCELL_") and k not in pins
+    }
 
 
 def _killpg(pgid: int, sig: int) -> None:
@@ -308,6 +313,10 @@ def test_study_through_the_api_matches_the_embedded_run(
     ran = [t for t in stream.data if str(t["key"]).startswith(f"impactcell-{rec['id']}-")]
     assert ran and {t["worker"] for t in ran} <= set(topology.worker_pids())
     _same(ds, ref.result())
+    # Each nanny pinned the CPU target before it started its worker (--preload-nanny worker).
+    if cpu.pinnable():
+        assert set(topology.dask.run(cpu.kernels).values()) == {cpu.BLAS_CORE}
+        assert set(topology.dask.run(cpu.compiled_for).values()) == {cpu.NUMBA_CPU}
 
 
 # Slower per point than FAST_SOLVER (which does 600 points in well under a second on two

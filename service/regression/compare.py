@@ -367,7 +367,9 @@ def compare(
             out.notes.append(f"definition differs from the baseline's in {', '.join(differ)}")
         if one_sided:  # e.g. a solver setting added since, at its default
             out.notes.append(f"definition keys in only one of the runs: {', '.join(one_sided)}")
-    for key in ("solver_version", "impactcell_version", "git_commit"):
+    # blas_kernels, numba_cpu: another CPU target rounds differently; grazing or chaotic points
+    # can then end otherwise (worker/cpu.py), which this note explains.
+    for key in ("solver_version", "impactcell_version", "git_commit", "blas_kernels", "numba_cpu"):
         a, b = baseline.attrs.get(key), new.attrs.get(key)
         if a is not None and b is not None and a != b:
             out.notes.append(f"{key}: baseline {a}, new {b}")

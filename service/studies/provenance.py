@@ -13,7 +13,16 @@ from functools import cache
 from importlib import metadata
 from pathlib import Path
 
-__all__ = ["git_commit", "git_dirty", "package_version", "provenance_attrs", "versions"]
+from worker.cpu import compiled_for, kernels
+
+__all__ = [
+    "blas_kernels",
+    "git_commit",
+    "git_dirty",
+    "package_version",
+    "provenance_attrs",
+    "versions",
+]
 
 # The folder holding the packages: the repository root in a checkout.
 _SOURCE = Path(__file__).resolve().parents[2]
@@ -62,13 +71,23 @@ def versions() -> dict[str, str]:
     return {name: package_version(name) for name in ("impactcell", *_LIBRARIES)}
 
 
+@cache
+def blas_kernels() -> str:
+    """:func:`worker.blas.kernels`, asked once per process (fixed once OpenBLAS is loaded)."""
+    return kernels()
+
+
 def provenance_attrs() -> dict[str, str]:
-    """Dataset attributes: ``impactcell_version``, ``git_commit``, ``git_dirty``, and
-    ``<library>_version`` for numpy, numba, xarray and dask."""
+    """Dataset attributes: ``impactcell_version``, ``git_commit``, ``git_dirty``,
+    ``<library>_version`` for numpy, numba, xarray and dask, ``blas_kernels`` and
+    ``numba_cpu``: the OpenBLAS kernels and numba's target of the process writing the file (its
+    embedded workers inherit its pin; worker/cpu.py), which decide a point's last bits."""
     v = versions()
     return {
         "impactcell_version": v["impactcell"],
         "git_commit": git_commit(),
         "git_dirty": git_dirty(),
         **{f"{name}_version": v[name] for name in _LIBRARIES},
+        "blas_kernels": blas_kernels(),
+        "numba_cpu": compiled_for(),
     }

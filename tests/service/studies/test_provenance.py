@@ -12,6 +12,7 @@ from service.studies import provenance
 from service.studies.chunks import StudyStore
 from service.studies.dataset import results_from_records
 from service.studies.schema import parse_study
+from worker import cpu
 from worker.simulate import SolverSettings, failed_result
 
 
@@ -33,8 +34,12 @@ def test_git_is_asked_once_per_process(monkeypatch: pytest.MonkeyPatch) -> None:
     assert first["git_dirty"] in ("yes", "no", "unknown")
     assert set(first) == {
         "impactcell_version", "git_commit", "git_dirty",
-        "numpy_version", "numba_version", "xarray_version", "dask_version",
+        "numpy_version", "numba_version", "xarray_version", "dask_version", "blas_kernels",
+        "numba_cpu",
     }  # fmt: skip
+    # Which OpenBLAS kernels and numba target compute the points: pinned where the CPU runs them.
+    if cpu.pinnable():
+        assert (first["blas_kernels"], first["numba_cpu"]) == (cpu.BLAS_CORE, cpu.NUMBA_CPU)
 
 
 def test_datasets_carry_the_provenance(tmp_path: Path) -> None:

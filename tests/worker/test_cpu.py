@@ -1,0 +1,71 @@
+"""The CPU target is pinned (worker/cpu.py): where, to what, and that it takes effect."""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
+
+import pytest
+
+from worker import cpu
+
+CAN_PIN = cpu.pinnable()
+PINS = (cpu.BLAS_ENV, cpu.NUMBA_ENV)
+
+
+@pytest.fixture
+def unpinned(monkeypatch: pytest.MonkeyPatch) -> None:
+    for var in PINS:
+        monkeypatch.delenv(var, raising=False)
+
+
+@pytest.mark.usefixtures("unpinned")
+def test_pins_haswell_only_where_the_cpu_runs_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(platform, "machine", lambda: "x86_64")
+    assert cpu.pin(frozenset({"sse2", "avx"})) is None  # no AVX2/FMA: left to the libraries
+    assert not any(v in os.environ for v in PINS)
+    assert cpu.pin(frozenset({"avx", "avx2", "fma", "avx512f"})) == "Haswell"
+    assert (os.environ[cpu.BLAS_ENV], os.environ[cpu.NUMBA_ENV]) == ("Haswell", "haswell")
+
+
+@pytest.mark.usefixtures("unpinned")
+def test_other_architectures_are_left_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(platform, "machine", lambda: "aarch64")
+    assert cpu.pin(frozenset({"avx2", "fma"})) is None
+    assert not any(v in os.environ for v in PINS)
+
+
+@pytest.mark.usefixtures("unpinned")
+def test_a_target_already_set_is_the_users_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(platform, "machine", lambda: "x86_64")
+    monkeypatch.setenv(cpu.BLAS_ENV, "Sandybridge")
+    monkeypatch.setenv(cpu.NUMBA_ENV, "generic")
+    assert cpu.pin(frozenset({"avx2", "fma"})) == "Sandybridge"
+    assert (os.environ[cpu.BLAS_ENV], os.environ[cpu.NUMBA_ENV]) == ("Sandybridge", "generic")
+
+
+def test_a_fresh_process_that_imports_the_worker_first_runs_the_pinned_targets() -> None:
+    env = {k: v for k, v in os.environ.items() if k not in PINS}
+    code = (
+        "import worker, numpy; from worker.cpu import compiled_for, kernels; "
+        "print(kernels(), compiled_for())"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    blas, numba_cpu = out.stdout.split()
+    if CAN_PIN:
+        assert (blas, numba_cpu) == ("Haswell", "haswell")
+    else:  # the libraries' own choice, still named
+        assert blas and numba_cpu
+
+
+def test_this_process_is_pinned_by_conftest() -> None:
+    # conftest imports ``worker`` before numpy and numba: the test process itself is pinned.
+    if CAN_PIN:
+        assert (cpu.kernels(), cpu.compiled_for()) == ("Haswell", "haswell")
+    else:
+        assert cpu.kernels() and cpu.compiled_for()

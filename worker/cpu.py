@@ -1,0 +1,107 @@
+"""One CPU target for the numbers: the same BLAS kernels and compiled code on every x86-64 machine.
+
+A point's last bits depend on the CPU twice:
+
+* OpenBLAS (numpy's and scipy's copies: the set-up's eigen-decompositions, inverses and
+  products, and numba's ``np.linalg`` inside kernels) picks its kernels by CPU when it loads;
+  forcing other kernels (``Sandybridge``) on an AVX2 machine changes 67 of the point-engine
+  benchmark's 120 points in their last digits.
+* numba compiles for the host CPU; compiling for a ``generic`` x86-64 instead of the host
+  changes 61 of them (``haswell`` gives the host's numbers on an AMD Zen 3).
+
+Converged linear and periodic answers agree far inside every tolerance, but a grazing or
+chaotic point amplifies the difference into another outcome (transient chaos dying out or not,
+coexisting orbits): the nightly suite's baselines, cut on another machine, differed from an AVX2
+machine's run at 30 of 2,044 points.
+
+:func:`pin` fixes both on every x86-64 CPU with AVX2 and FMA: ``OPENBLAS_CORETYPE=Haswell``
+(read when OpenBLAS loads) and ``NUMBA_CPU_NAME=haswell`` (read when numba is imported).
+``worker`` calls it first thing, so every process that imports ``worker`` before numpy and numba,
+and every process started from one (dask's worker processes inherit the environment), computes
+with the same kernels. A value already set is the user's choice and kept. Other CPUs (aarch64,
+x86-64 without AVX2) are left to the libraries.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import re
+import sys
+
+__all__ = [
+    "BLAS_CORE", "BLAS_ENV", "NUMBA_CPU", "NUMBA_ENV", "compiled_for", "kernels", "pin", "pinnable",
+]  # fmt: skip
+
+BLAS_ENV, BLAS_CORE = "OPENBLAS_CORETYPE", "Haswell"
+NUMBA_ENV, NUMBA_CPU = "NUMBA_CPU_NAME", "haswell"
+_NEEDS = frozenset({"avx2", "fma"})  # what both targets use
+
+
+def _cpu_flags() -> frozenset[str]:
+    """The CPU's feature flags (Linux ``/proc/cpuinfo``; empty where it cannot be read)."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.partition(":")[2].split())
+    except OSError:
+        pass
+    return frozenset()
+
+
+def pinnable(flags: frozenset[str] | None = None) -> bool:
+    """Whether this CPU (or one with these ``flags``) runs the pinned targets."""
+    have = _cpu_flags() if flags is None else flags
+    return platform.machine().lower() in ("x86_64", "amd64") and have >= _NEEDS
+
+
+def pin(flags: frozenset[str] | None = None) -> str | None:
+    """Set ``OPENBLAS_CORETYPE`` and ``NUMBA_CPU_NAME`` where the CPU runs those targets.
+
+    Returns the OpenBLAS core type now in the environment (``None``: left to OpenBLAS). Only
+    libraries loaded afterwards are affected: numpy or numba imported earlier keep their choice.
+    """
+    if pinnable(flags):
+        os.environ.setdefault(BLAS_ENV, BLAS_CORE)
+        os.environ.setdefault(NUMBA_ENV, NUMBA_CPU)
+    return os.environ.get(BLAS_ENV) or None
+
+
+def kernels() -> str:
+    """The kernels numpy's OpenBLAS runs in this process (``"Haswell"``, ``"SkylakeX"``, …).
+
+    ``"unknown"`` where numpy is not loaded, its BLAS is not OpenBLAS or cannot be asked.
+    """
+    if "numpy" not in sys.modules:
+        return "unknown"
+    import ctypes
+
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
+            libs = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", f.read())))
+    except OSError:
+        return "unknown"
+    for path in libs:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        # numpy's build (scipy-openblas64) suffixes its symbols; a plain build does not.
+        for name in ("scipy_openblas_get_corename64_", "openblas_get_corename"):
+            fn = getattr(lib, name, None)
+            if fn is not None:
+                fn.restype = ctypes.c_char_p
+                return (fn() or b"unknown").decode("ascii", "replace").strip() or "unknown"
+    return "unknown"
+
+
+def compiled_for() -> str:
+    """The CPU numba compiles this process's kernels for (``"haswell"``, or the host's name)."""
+    from numba.core import config
+
+    if config.CPU_NAME:
+        return str(config.CPU_NAME)
+    import llvmlite.binding as ll
+
+    return str(ll.get_host_cpu_name())
