@@ -195,7 +195,7 @@ class Topology:
 def _clean_env() -> dict[str, str]:
     # No IMPACTCELL_* setting of the caller's (token, database, scheduler) leaks in, nor the
     # CPU pin the test process inherited: each process must pin it itself, as in compose.
-    pins = (cpu.BLAS_ENV, cpu.NUMBA_ENV)
+    pins = (cpu.BLAS_ENV, cpu.NUMBA_ENV, cpu.NUMPY_ENV)
     return {
         k: v for k, v in os.environ.items() if not k.startswith("IMPACTCELL_") and k not in pins
     }

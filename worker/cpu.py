@@ -8,14 +8,18 @@ A point's last bits depend on the CPU twice:
   benchmark's 120 points in their last digits.
 * numba compiles for the host CPU; compiling for a ``generic`` x86-64 instead of the host
   changes 61 of them (``haswell`` gives the host's numbers on an AMD Zen 3).
+* numpy dispatches its float64 ``exp``, ``log``, ``sin`` and ``cos`` to AVX-512 versions where
+  the CPU has them (their own approximations, not libm's).
 
 Converged linear and periodic answers agree far inside every tolerance, but a grazing or
 chaotic point amplifies the difference into another outcome (transient chaos dying out or not,
 coexisting orbits): the nightly suite's baselines, cut on another machine, differed from an AVX2
 machine's run at 30 of 2,044 points.
 
-:func:`pin` fixes both on every x86-64 CPU with AVX2 and FMA: ``OPENBLAS_CORETYPE=Haswell``
-(read when OpenBLAS loads) and ``NUMBA_CPU_NAME=haswell`` (read when numba is imported).
+:func:`pin` fixes all three on every x86-64 CPU with AVX2 and FMA: ``OPENBLAS_CORETYPE=Haswell``
+(read when OpenBLAS loads), ``NUMBA_CPU_NAME=haswell`` (read when numba is imported) and
+``NPY_DISABLE_CPU_FEATURES`` naming numpy's AVX-512 targets (read when numpy is imported; on a
+CPU without them it changes nothing).
 ``worker`` calls it first thing, so every process that imports ``worker`` before numpy and numba,
 and every process started from one (dask's worker processes inherit the environment), computes
 with the same kernels. A value already set is the user's choice and kept. Other CPUs (aarch64,
@@ -30,11 +34,14 @@ import re
 import sys
 
 __all__ = [
-    "BLAS_CORE", "BLAS_ENV", "NUMBA_CPU", "NUMBA_ENV", "compiled_for", "kernels", "pin", "pinnable",
+    "BLAS_CORE", "BLAS_ENV", "NUMBA_CPU", "NUMBA_ENV", "NUMPY_ENV", "NUMPY_OFF", "compiled_for",
+    "kernels", "pin", "pinnable",
 ]  # fmt: skip
 
 BLAS_ENV, BLAS_CORE = "OPENBLAS_CORETYPE", "Haswell"
 NUMBA_ENV, NUMBA_CPU = "NUMBA_CPU_NAME", "haswell"
+# numpy 2's dispatch targets above AVX2 (x86-64-v3); numpy warns about names it does not know.
+NUMPY_ENV, NUMPY_OFF = "NPY_DISABLE_CPU_FEATURES", "X86_V4 AVX512_ICL AVX512_SPR"
 _NEEDS = frozenset({"avx2", "fma"})  # what both targets use
 
 
@@ -57,7 +64,8 @@ def pinnable(flags: frozenset[str] | None = None) -> bool:
 
 
 def pin(flags: frozenset[str] | None = None) -> str | None:
-    """Set ``OPENBLAS_CORETYPE`` and ``NUMBA_CPU_NAME`` where the CPU runs those targets.
+    """Set ``OPENBLAS_CORETYPE``, ``NUMBA_CPU_NAME`` and ``NPY_DISABLE_CPU_FEATURES`` where the
+    CPU runs those targets.
 
     Returns the OpenBLAS core type now in the environment (``None``: left to OpenBLAS). Only
     libraries loaded afterwards are affected: numpy or numba imported earlier keep their choice.
@@ -65,6 +73,7 @@ def pin(flags: frozenset[str] | None = None) -> str | None:
     if pinnable(flags):
         os.environ.setdefault(BLAS_ENV, BLAS_CORE)
         os.environ.setdefault(NUMBA_ENV, NUMBA_CPU)
+        os.environ.setdefault(NUMPY_ENV, NUMPY_OFF)
     return os.environ.get(BLAS_ENV) or None
 
 
