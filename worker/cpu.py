@@ -74,7 +74,31 @@ def pin(flags: frozenset[str] | None = None) -> str | None:
         os.environ.setdefault(BLAS_ENV, BLAS_CORE)
         os.environ.setdefault(NUMBA_ENV, NUMBA_CPU)
         os.environ.setdefault(NUMPY_ENV, NUMPY_OFF)
+        _warn_if_too_late()
     return os.environ.get(BLAS_ENV) or None
+
+
+def _warn_if_too_late() -> None:
+    """Say so when numpy or numba was loaded before the pin with another target: this process's
+    numbers may then differ from the service's at grazing or chaotic points."""
+    late = []
+    if "numpy" in sys.modules and kernels() not in (os.environ[BLAS_ENV], "unknown"):
+        late.append(f"numpy's OpenBLAS runs its {kernels()} kernels")
+    if "numba" in sys.modules:
+        from numba.core import config
+
+        if os.environ[NUMBA_ENV] != config.CPU_NAME:
+            late.append(f"numba compiles for {compiled_for()}")
+    if late:
+        import warnings
+
+        warnings.warn(
+            f"{' and '.join(late)}, not the pinned {BLAS_CORE} target (imported before "
+            "worker): grazing or chaotic points may end otherwise than in the service; import "
+            f"worker first, or set {BLAS_ENV}={BLAS_CORE} and {NUMBA_ENV}={NUMBA_CPU}",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
 
 def kernels() -> str:

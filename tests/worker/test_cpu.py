@@ -71,3 +71,17 @@ def test_this_process_is_pinned_by_conftest() -> None:
         assert (cpu.kernels(), cpu.compiled_for()) == ("Haswell", "haswell")
     else:
         assert cpu.kernels() and cpu.compiled_for()
+
+
+def test_a_process_that_loaded_numba_first_is_told() -> None:
+    env = {k: v for k, v in os.environ.items() if k not in PINS}
+    out = subprocess.run(
+        [sys.executable, "-c", "import numba, worker"],
+        env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    if CAN_PIN:  # numba chose the host before the pin: the warning names what and the remedy
+        assert "RuntimeWarning" in out.stderr and "numba compiles for" in out.stderr
+        assert "import worker first" in out.stderr
+    else:
+        assert "RuntimeWarning" not in out.stderr
