@@ -14,7 +14,7 @@ A point's last bits depend on the CPU twice:
 Converged linear and periodic answers agree far inside every tolerance, but a grazing or
 chaotic point amplifies the difference into another outcome (transient chaos dying out or not,
 coexisting orbits): the nightly suite's baselines, cut on another machine, differed from an AVX2
-machine's run at 30 of 2,044 points.
+machine's run at 26 of 2,044 points.
 
 :func:`pin` fixes all three on every x86-64 CPU with AVX2 and FMA: ``OPENBLAS_CORETYPE=Haswell``
 (read when OpenBLAS loads), ``NUMBA_CPU_NAME=haswell`` (read when numba is imported) and
