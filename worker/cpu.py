@@ -1,6 +1,6 @@
 """One CPU target for the numbers: the same BLAS kernels and compiled code on every x86-64 machine.
 
-A point's last bits depend on the CPU twice:
+A point's last bits depend on the CPU in three ways:
 
 * OpenBLAS (numpy's and scipy's copies: the set-up's eigen-decompositions, inverses and
   products, and numba's ``np.linalg`` inside kernels) picks its kernels by CPU when it loads;
@@ -82,8 +82,9 @@ def _warn_if_too_late() -> None:
     """Say so when numpy or numba was loaded before the pin with another target: this process's
     numbers may then differ from the service's at grazing or chaotic points."""
     late = []
-    if "numpy" in sys.modules and kernels() not in (os.environ[BLAS_ENV], "unknown"):
-        late.append(f"numpy's OpenBLAS runs its {kernels()} kernels")
+    blas = kernels()
+    if blas not in (os.environ[BLAS_ENV], "unknown"):
+        late.append(f"numpy's OpenBLAS runs its {blas} kernels")
     if "numba" in sys.modules:
         from numba.core import config
 

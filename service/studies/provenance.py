@@ -73,7 +73,7 @@ def versions() -> dict[str, str]:
 
 @cache
 def blas_kernels() -> str:
-    """:func:`worker.blas.kernels`, asked once per process (fixed once OpenBLAS is loaded)."""
+    """:func:`worker.cpu.kernels`, asked once per process (fixed once OpenBLAS is loaded)."""
     return kernels()
 
 
