@@ -94,9 +94,10 @@ def _warn_if_too_late() -> None:
         import warnings
 
         warnings.warn(
-            f"{' and '.join(late)}, not the pinned {BLAS_CORE} target (imported before "
-            "worker): grazing or chaotic points may end otherwise than in the service; import "
-            f"worker first, or set {BLAS_ENV}={BLAS_CORE} and {NUMBA_ENV}={NUMBA_CPU}",
+            f"{' and '.join(late)}, not {BLAS_ENV}={os.environ[BLAS_ENV]} and "
+            f"{NUMBA_ENV}={os.environ[NUMBA_ENV]} (loaded before worker): grazing or chaotic "
+            "points may end otherwise than in the service; import worker first, or set both "
+            "before starting Python",
             RuntimeWarning,
             stacklevel=3,
         )
