@@ -82,3 +82,17 @@ def test_profile_kernels_maps_the_compiled_kernels(tmp_path: Path) -> None:
     assert starts == sorted(starts) and all(s > 0 for s in sizes)
     # each function ends where the next begins (perf attributes a sample to one function)
     assert all(a + s <= b for a, s, b in zip(starts[:-1], sizes[:-1], starts[1:], strict=True))
+
+
+def test_cpu_targets_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
+    cpu_targets = _load("cpu_targets")
+    for argv, says in (
+        (["--variants", "pinned,avx512"], "--variants: ['avx512'] not allowed; choose from"),
+        (["--every", "0"], "--every: 0 not allowed; an integer in 1…40"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            cpu_targets.main(argv)
+        assert exc.value.code == 2
+        assert says in capsys.readouterr().err
+    # The pinned variant is worker.cpu's pin, not a copy that could drift from it.
+    assert cpu_targets.VARIANTS["pinned"]["OPENBLAS_CORETYPE"] == "Haswell"

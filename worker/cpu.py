@@ -4,10 +4,10 @@ A point's last bits depend on the CPU in three ways:
 
 * OpenBLAS (numpy's and scipy's copies: the set-up's eigen-decompositions, inverses and
   products, and numba's ``np.linalg`` inside kernels) picks its kernels by CPU when it loads;
-  forcing other kernels (``Sandybridge``) on an AVX2 machine changes 67 of the point-engine
-  benchmark's 120 points in their last digits.
-* numba compiles for the host CPU; compiling for a ``generic`` x86-64 instead of the host
-  changes 61 of them (``haswell`` gives the host's numbers on an AMD Zen 3).
+  forcing other kernels (``Sandybridge``) on an AVX2 machine changes 59 of the point-engine
+  benchmark's 120 points, 2 of them in outcome or period (``benchmarks/cpu_targets.py``).
+* numba compiles for the host CPU; compiling for a ``generic`` x86-64 instead changes 55 of
+  them, 2 in outcome or period (``haswell`` gives the host's numbers on an AMD Zen 3).
 * numpy dispatches its float64 ``exp``, ``log``, ``sin`` and ``cos`` to AVX-512 versions where
   the CPU has them (their own approximations, not libm's).
 
