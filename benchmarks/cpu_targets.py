@@ -67,10 +67,8 @@ print(json.dumps({{"blas": kernels(), "numba": compiled_for(), "points": out}}))
 
 def run_variant(name: str, every: int, cache: Path) -> dict:
     """The points of one variant, computed in a fresh process."""
-    env = {k: v for k, v in os.environ.items() if k not in PINNED}
-    env.update(VARIANTS[name])
-    env["OPENBLAS_NUM_THREADS"] = "1"
-    env["NUMBA_CACHE_DIR"] = str(cache / name)
+    env = {**os.environ, **VARIANTS[name], "OPENBLAS_NUM_THREADS": "1",
+           "NUMBA_CACHE_DIR": str(cache / name)}  # fmt: skip
     code = _CHILD.format(bench=str(ROOT / "benchmarks"), every=every)
     out = subprocess.run(
         [sys.executable, "-c", code], env=env, cwd=ROOT, capture_output=True, text=True,

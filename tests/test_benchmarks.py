@@ -94,5 +94,5 @@ def test_cpu_targets_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -
             cpu_targets.main(argv)
         assert exc.value.code == 2
         assert says in capsys.readouterr().err
-    # The pinned variant is worker.cpu's pin, not a copy that could drift from it.
+    # The pinned variant is what worker pins on an AVX2 machine.
     assert cpu_targets.VARIANTS["pinned"]["OPENBLAS_CORETYPE"] == "Haswell"

@@ -83,13 +83,12 @@ def _warn_if_too_late() -> None:
     numbers may then differ from the service's at grazing or chaotic points."""
     late = []
     blas = kernels()
-    if blas not in (os.environ[BLAS_ENV], "unknown"):
+    # An empty value asks for the library's own choice: nothing to compare it with.
+    if os.environ[BLAS_ENV] and blas not in (os.environ[BLAS_ENV], "unknown"):
         late.append(f"numpy's OpenBLAS runs its {blas} kernels")
-    if "numba" in sys.modules:
-        from numba.core import config
-
-        if os.environ[NUMBA_ENV] != config.CPU_NAME:
-            late.append(f"numba compiles for {compiled_for()}")
+    target = compiled_for() if "numba" in sys.modules else os.environ[NUMBA_ENV]
+    if os.environ[NUMBA_ENV] and target != os.environ[NUMBA_ENV]:
+        late.append(f"numba compiles for {target}")
     if late:
         import warnings
 

@@ -15,14 +15,7 @@ from pathlib import Path
 
 from worker.cpu import compiled_for, kernels
 
-__all__ = [
-    "blas_kernels",
-    "git_commit",
-    "git_dirty",
-    "package_version",
-    "provenance_attrs",
-    "versions",
-]
+__all__ = ["git_commit", "git_dirty", "package_version", "provenance_attrs", "versions"]
 
 # The folder holding the packages: the repository root in a checkout.
 _SOURCE = Path(__file__).resolve().parents[2]
@@ -72,9 +65,9 @@ def versions() -> dict[str, str]:
 
 
 @cache
-def blas_kernels() -> str:
-    """:func:`worker.cpu.kernels`, asked once per process (fixed once OpenBLAS is loaded)."""
-    return kernels()
+def _cpu_target() -> tuple[str, str]:
+    """OpenBLAS's kernels and numba's target, asked once per process (fixed once loaded)."""
+    return kernels(), compiled_for()
 
 
 def provenance_attrs() -> dict[str, str]:
@@ -88,6 +81,5 @@ def provenance_attrs() -> dict[str, str]:
         "git_commit": git_commit(),
         "git_dirty": git_dirty(),
         **{f"{name}_version": v[name] for name in _LIBRARIES},
-        "blas_kernels": blas_kernels(),
-        "numba_cpu": compiled_for(),
+        **dict(zip(("blas_kernels", "numba_cpu"), _cpu_target(), strict=True)),
     }

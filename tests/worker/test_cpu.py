@@ -15,6 +15,11 @@ CAN_PIN = cpu.pinnable()
 PINS = (cpu.BLAS_ENV, cpu.NUMBA_ENV, cpu.NUMPY_ENV)
 
 
+def _fresh_env() -> dict[str, str]:
+    """This process's environment without the pin: a child must pin itself."""
+    return {k: v for k, v in os.environ.items() if k not in PINS}
+
+
 @pytest.fixture
 def unpinned(monkeypatch: pytest.MonkeyPatch) -> None:
     for var in PINS:
@@ -50,7 +55,7 @@ def test_a_target_already_set_is_the_users_choice(monkeypatch: pytest.MonkeyPatc
 
 
 def test_a_fresh_process_that_imports_the_worker_first_runs_the_pinned_targets() -> None:
-    env = {k: v for k, v in os.environ.items() if k not in PINS}
+    env = _fresh_env()
     code = (
         "import worker, numpy; from worker.cpu import compiled_for, kernels; "
         "from numpy._core._multiarray_umath import __cpu_features__ as f; "
@@ -76,7 +81,7 @@ def test_this_process_is_pinned_by_conftest() -> None:
 
 
 def test_a_process_that_loaded_numba_first_is_told() -> None:
-    env = {k: v for k, v in os.environ.items() if k not in PINS}
+    env = _fresh_env()
     out = subprocess.run(
         [sys.executable, "-c", "import numba, worker"],
         env=env, capture_output=True, text=True, timeout=120,
