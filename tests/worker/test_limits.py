@@ -17,6 +17,8 @@ from worker.solvers import engine
 # An irregular point: runs hundreds of periods before it may end (tests/worker/test_engine.py).
 IRREGULAR = dict(theta=1.0, xi=0.02, g1=0.5, g2=0.5, sigma=0.05, gamma_s=1.0, gamma_r=2.2)
 PERIODIC = dict(theta=0.3, xi=0.05, g1=0.1, g2=0.1, sigma=0.05, gamma_s=1.0, gamma_r=2.05)
+# Irregular too, and its Γ moved with where batches started before windows were measured whole.
+IRREGULAR_A = {**PERIODIC, "gamma_r": 2.2}
 
 
 def test_a_point_over_its_step_budget_fails_with_the_reason():
@@ -83,16 +85,20 @@ def test_a_chunk_passes_its_limits_to_every_point():
     assert all(r["outcome"] == "failed" and "step budget" in r["reason"] for r in out)
 
 
-def test_short_batches_give_the_same_numbers(monkeypatch):
-    # Slow periods shorten the batches between limit checks. An orbit is the same to the bit;
-    # chaotic motion amplifies the round-off of restarting a batch, far below its error bar.
-    ref = {k: simulate_point(CellParams(**p)) for k, p in (("irr", IRREGULAR), ("per", PERIODIC))}
+@pytest.mark.parametrize("method", ["event", "exponential", "euler"])
+def test_short_batches_give_the_same_numbers_to_the_bit(monkeypatch, method):
+    # Slow periods shorten the batches between limit checks (engine._pace, by the clock), so
+    # where a batch starts must change nothing: the kernels carry their state over exactly,
+    # and a window is measured whole or not at all. (Before, a batch starting inside the
+    # window where measuring begins measured part of it: an irregular Γ moved by ~1e-8 dB
+    # with the machine's load.)
+    settings = SolverSettings(method=method)
+    pts = (("irr", IRREGULAR), ("irr_a", IRREGULAR_A), ("per", PERIODIC))
+    ref = {k: simulate_point(CellParams(**p), settings).as_dict() for k, p in pts}
     monkeypatch.setattr(engine, "BATCH_S", 0.0)  # every batch counts as slow: one period each
-    short = {k: simulate_point(CellParams(**p)) for k, p in (("irr", IRREGULAR), ("per", PERIODIC))}
-    a, b = ref["per"].as_dict(), short["per"].as_dict()
-    a.pop("wall_s"), b.pop("wall_s")
-    assert a["outcome"] == "periodic" and a == b
-    irr, irr_short = ref["irr"], short["irr"]
-    assert irr.outcome == irr_short.outcome == "irregular"
-    assert irr.periods == irr_short.periods
-    assert abs(irr.transmittance_db - irr_short.transmittance_db) < 1e-3 * irr.transmittance_db_se
+    short = {k: simulate_point(CellParams(**p), settings).as_dict() for k, p in pts}
+    assert ref["irr"]["outcome"] == ref["irr_a"]["outcome"] == "irregular"
+    assert ref["per"]["outcome"] == "periodic"
+    for k in ref:
+        ref[k].pop("wall_s"), short[k].pop("wall_s")
+        assert short[k] == ref[k]

@@ -441,7 +441,11 @@ class _Engine:
     def run_to_end(self) -> tuple[str, object]:
         s = self.s
         w = s.window
-        measure_from = max(2 * w, s.max_periods // 4 - MIN_WINDOWS * w)
+        # Measured from a window's start (the last MIN_WINDOWS windows before the earliest
+        # irregular claim): a window is measured whole or not at all, so what it holds never
+        # depends on where a batch starts (batches are cut short by the clock, _pace).
+        first = max(2 * w, s.max_periods // 4 - MIN_WINDOWS * w)
+        measure_from = -(-first // w) * w
         while self.period < s.max_periods:
             n = min(w - self.period % w, s.max_periods - self.period, self.stride)
             measure = self.period >= measure_from
