@@ -96,3 +96,19 @@ def test_cpu_targets_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -
         assert says in capsys.readouterr().err
     # The pinned variant is what worker pins on an AVX2 machine.
     assert cpu_targets.VARIANTS["pinned"]["OPENBLAS_CORETYPE"] == "Haswell"
+
+
+def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> None:
+    mod = _load("point_engine")
+    rows = [
+        dict(outcome="linear", ms=1.0, periods=10, paper_ms=40.0),
+        dict(outcome="irregular", ms=20.0, periods=260, paper_ms=50.0),
+        dict(outcome="unsettled", ms=30.0, periods=1000, paper_ms=30.0),
+        dict(outcome="linear", ms=3.0, periods=50, paper_ms=80.0),
+    ]
+    groups = mod.by_outcome(rows)
+    assert list(groups) == ["irregular", "linear", "unsettled"]
+    assert groups["linear"] == dict(points=2, ms=4.0, periods=60, paper_ms=120.0)
+    # all of the paper's time (200 ms) over the irregular and unsettled points' (50 ms)
+    assert mod.ceiling(rows) == 4.0
+    assert mod.ceiling(rows[:1]) == float("inf")
