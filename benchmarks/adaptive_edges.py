@@ -34,12 +34,15 @@ from typing import Any
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-import xarray as xr  # noqa: E402
-
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
+
+# isort: split
+import numpy as np  # noqa: E402
+import xarray as xr  # noqa: E402
 
 from service.api.catalogue import Catalogue  # noqa: E402
 from service.api.points import SqlPointStore  # noqa: E402

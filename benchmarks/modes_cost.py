@@ -24,11 +24,14 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: threads only cost
 
-import numpy as np  # noqa: E402
-
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
+
+# isort: split
+import numpy as np  # noqa: E402
 
 from benchmarks.point_engine import SPECTRA, timed, write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402

@@ -57,13 +57,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 # The worker process imports ``worker`` from this checkout, not from wherever the package is
 # installed: comparing two checkouts must run each one's code.
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
+
+# isort: split
+import numpy as np  # noqa: E402
 
 BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, modes=5)
 METHODS = ("event", "exponential", "euler")  # the default first

@@ -20,6 +20,9 @@ import tempfile
 import time
 from pathlib import Path
 
+import worker  # noqa: F401  # first: pins the CPU target (worker/cpu.py)
+
+# isort: split
 import numpy as np
 
 from service.studies.dataset import open_results

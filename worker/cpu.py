@@ -22,7 +22,9 @@ machine's run at 26 of 2,044 points.
 CPU without them it changes nothing).
 ``worker`` calls it first thing, so every process that imports ``worker`` before numpy and numba,
 and every process started from one (dask's worker processes inherit the environment), computes
-with the same kernels. A value already set is the user's choice and kept. Other CPUs (aarch64,
+with the same kernels: the ``service`` package imports ``worker`` first, and scripts that load
+numpy themselves (the benchmarks, tests/conftest.py) import it before. A value already set is
+the user's choice and kept. Other CPUs (aarch64,
 x86-64 without AVX2) are left to the libraries.
 """
 

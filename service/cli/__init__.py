@@ -11,7 +11,6 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-import worker  # noqa: F401  # first: pins the CPU target before numpy loads (worker/cpu.py)
 from service.cli import db, nightly, points, service, simulate, study
 from service.cli.common import Parser, error_exit_status
 

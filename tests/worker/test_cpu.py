@@ -92,3 +92,29 @@ def test_a_process_that_loaded_numba_first_is_told() -> None:
         assert "import worker first" in out.stderr and "NUMBA_CPU_NAME=haswell" in out.stderr
     else:
         assert "RuntimeWarning" not in out.stderr
+
+
+# Loaded in a fresh process: whether numpy was already loaded when the pin ran.
+_ORDER = """
+import importlib.abc, sys
+class Watch(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name == "worker.cpu":
+            print("numpy loaded before the pin:", "numpy" in sys.modules)
+sys.meta_path.insert(0, Watch())
+import {module}
+"""
+
+
+@pytest.mark.parametrize(
+    "module", ["service.api.app", "service.regression.run", "service.client", "service.cli"]
+)
+def test_every_way_into_the_service_pins_before_numpy_loads(module: str) -> None:
+    # The service package imports worker first: an API app under any server, the runner or the
+    # nightly run used as a library, the client all compute with the pinned targets.
+    out = subprocess.run(
+        [sys.executable, "-c", _ORDER.format(module=module)],
+        env=_fresh_env(), capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "numpy loaded before the pin: False"
