@@ -51,6 +51,7 @@ from service.studies.points import (
 )
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
+from service.studies.tasks import chunk_task
 from service.studies.variables import OUTCOMES, outcome_names
 from worker import simulate
 from worker.simulate import (
@@ -78,7 +79,6 @@ __all__ = [
 DEFAULT_CHUNK_SIZE = 32  # points per task: ~0.1–0.6 s at 2–20 ms a point, ≫ dask's ~1 ms
 TASK_RETRIES = 2
 CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, not minutes
-CANCEL_POLL_S = 1.0  # how often a running task asks whether its study was cancelled
 # Single-threaded BLAS in worker processes: dask's ``distributed.nanny.pre-spawn-environ``
 # default already sets these to 1 before a worker process starts; only missing ones are added.
 _ONE_BLAS_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -350,51 +350,6 @@ def make_run(
     return StudyRun(study, root, **kwargs)
 
 
-class _CancelProbe:
-    """Runs inside a task: whether the task's study was cancelled (a ``distributed.Event``),
-    asked at most every ``CANCEL_POLL_S`` seconds so the scheduler is not flooded."""
-
-    def __init__(self, name: str) -> None:
-        self.name = name
-        self._event: Any = None
-        self._next = 0.0
-        self._set = False
-
-    def __call__(self) -> bool:
-        now = time.monotonic()
-        if self._set or now < self._next:
-            return self._set
-        self._next = now + CANCEL_POLL_S
-        try:
-            if self._event is None:
-                from distributed import Event
-
-                self._event = Event(self.name)
-            self._set = bool(self._event.is_set())
-        except Exception:  # noqa: BLE001 - no scheduler to ask (a local call): not cancelled
-            self._set = False
-        return self._set
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {"name": self.name}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__init__(state["name"])  # type: ignore[misc]
-
-
-def _chunk_task(
-    points: list[dict[str, Any]],
-    solver: dict[str, Any],
-    limits: dict[str, Any],
-    cancel_event: str,
-    line: bool = False,
-) -> list[dict[str, Any]]:
-    """One dask task: ``simulate_chunk`` (``line``: ``simulate_line``, one sweep line) with the
-    study's cancel event polled inside."""
-    run = simulate_line if line else simulate_chunk
-    return run(points, solver, limits, _CancelProbe(cancel_event))
-
-
 @dataclass(eq=False)
 class _Piece:
     """One chunk of a run on its way: its records fill in from its own task, from tasks of
@@ -537,7 +492,7 @@ class ChunkPool:
         if compute:
             pts = run.points_of(start, stop)
             fut = self.client.submit(
-                _chunk_task,
+                chunk_task,
                 [pts[i] for i in compute],
                 run.solver,
                 self.limits,
