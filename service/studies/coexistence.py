@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 import xarray as xr
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from service.studies.variables import SWEEP_VARIABLES, outcome_names
 
@@ -126,6 +124,11 @@ def _count_block(
     close_periodic = both_nan | (diff <= tol_db)
     close_irregular = both_nan | np.where(np.isfinite(combined), diff < combined, diff <= tol_db)
     same &= np.where(irregular, close_irregular, close_periodic & same_period)
+    # Imported here: only studies with several computations per grid point need them, and
+    # scipy.sparse costs every process that collates a study ~0.1 s to import.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     rows, i, j = np.nonzero(same)
     n = g * m
     graph = coo_matrix(

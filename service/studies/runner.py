@@ -32,6 +32,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import threading
 import time
 import uuid
 from collections import deque
@@ -120,24 +121,49 @@ def make_client(
 ) -> tuple[Any, Any]:
     """A dask client on ``scheduler`` if given, else on a new LocalCluster of ``workers``.
 
-    Before a LocalCluster starts, ``method``'s kernels (``None``: every method's) are compiled
-    or loaded here, so its workers find them in numba's on-disk cache.
+    A LocalCluster's worker processes start (~1 s of imports) while ``method``'s kernels
+    (``None``: every method's) are compiled or loaded here; this returns once both are done, so
+    the workers, which load kernels only when asked (:func:`warm_up`, or their first point),
+    find them in numba's on-disk cache.
     """
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
         return Client(scheduler, timeout=CONNECT_TIMEOUT), None
-    simulate.warm_up(method)
     _worker_environ()
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(
-        n_workers=n,
-        threads_per_worker=1,  # the kernels hold the GIL: parallelism comes from processes
-        processes=True,
-        dashboard_address=":0",  # a free port: never clash with a running dask
-        silence_logs=40,  # logging.ERROR
-    )
-    return Client(cluster), cluster
+    started: dict[str, Any] = {}
+
+    def start() -> None:
+        try:
+            started["cluster"] = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,  # the kernels hold the GIL: processes give parallelism
+                processes=True,
+                dashboard_address=":0",  # a free port: never clash with a running dask
+                silence_logs=40,  # logging.ERROR
+            )
+        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
+            started["error"] = exc
+
+    starting = threading.Thread(target=start, name="impactcell-cluster-start")
+    starting.start()
+    try:
+        simulate.warm_up(method)
+    except BaseException:
+        starting.join()
+        if "cluster" in started:
+            started["cluster"].close()
+        raise
+    starting.join()
+    if "error" in started:
+        raise started["error"]
+    cluster = started["cluster"]
+    try:
+        return Client(cluster), cluster
+    except BaseException:
+        cluster.close()
+        raise
 
 
 def _nthreads(client: Any) -> int:
@@ -664,6 +690,7 @@ def run_study(
     stop_now = cancel or (lambda: False)
     limits = limits or PointLimits()
     own_client = own_cluster = None
+    closing: threading.Thread | None = None
     nworkers = 1
     run = make_run(
         study, root, chunk_size=chunk_size, progress=progress, on_chunk=on_chunk, points=points
@@ -695,12 +722,27 @@ def run_study(
                 pool.step(0.5)
         except Cancelled:
             return run.cancelled_summary(0 if serial else nworkers)
+        if own_client is not None:
+            # Every chunk is stored and nothing runs on the cluster any more: it shuts down
+            # (~1 s, mostly waiting for the worker processes to exit) while this process collates.
+            closing = threading.Thread(
+                target=_close, args=(own_client, own_cluster), name="impactcell-close"
+            )
+            closing.start()
         return run.collate(nworkers)
     finally:
-        if own_client is not None:
-            own_client.close()
-        if own_cluster is not None:
-            own_cluster.close()
+        if closing is not None:
+            closing.join()
+        else:
+            _close(own_client, own_cluster)
+
+
+def _close(client: Any, cluster: Any) -> None:
+    """Close a client and the cluster it was started with (either may be ``None``)."""
+    if client is not None:
+        client.close()
+    if cluster is not None:
+        cluster.close()
 
 
 def _summary(

@@ -138,6 +138,32 @@ def test_quick_study_runs(tmp_path: Path, cluster_client: Any) -> None:
     assert sum(s.outcomes.values()) == study.size
 
 
+@pytest.mark.slow  # starts its own cluster
+def test_own_cluster_shuts_down_while_the_results_are_collated(tmp_path: Path, monkeypatch) -> None:
+    import threading
+
+    seen: list[tuple[str, str]] = []
+    close, collate = runner._close, runner.StudyRun.collate
+
+    def traced_close(client: Any, cluster: Any) -> None:
+        seen.append(("close", threading.current_thread().name))
+        close(client, cluster)
+
+    def traced_collate(self: Any, workers: int) -> Any:
+        seen.append(("collate", threading.current_thread().name))
+        return collate(self, workers)
+
+    monkeypatch.setattr(runner, "_close", traced_close)
+    monkeypatch.setattr(runner.StudyRun, "collate", traced_collate)
+    s = run_study(_study(), tmp_path, workers=1)
+    assert s.computed == s.points == 48 and s.path.is_file()
+    assert sorted(seen) == [("close", "impactcell-close"), ("collate", "MainThread")]
+    # Cancelled: nothing to collate; the cluster is closed before the call returns.
+    seen.clear()
+    s = run_study(_study("cancelled"), tmp_path, workers=1, cancel=lambda: True)
+    assert s.cancelled and seen == [("close", "MainThread")]
+
+
 def test_summary_counts_outcomes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # A short budget: some points end irregular, some run out of periods (unsettled).
     study = parse_study(
@@ -182,28 +208,70 @@ def _study_file(folder: Path, study: Any) -> Path:
     return path
 
 
-def test_embedded_cluster_starts_after_the_parent_warmed_up(monkeypatch) -> None:
-    """The parent compiles (or loads) the kernels first, so its workers only load the cache."""
+def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
+    """The worker processes start while the parent compiles (or loads) the kernels; the client
+    comes only when both are done, so the workers, asked to load kernels after that, load the
+    parent's cache instead of compiling."""
+    import threading
+
     import dask.distributed
 
     calls: list[str] = []
-    monkeypatch.setattr(runner.simulate, "warm_up", lambda m=None: calls.append(f"warm {m}"))
+    begun = threading.Event()
+
+    def warm(m: str | None = None) -> None:
+        # The cluster's start has begun before the parent's kernels are ready: they overlap.
+        assert begun.wait(10), "the cluster did not start while the parent warmed up"
+        calls.append(f"warm {m}")
 
     class FakeCluster:
         def __init__(self, **kw: Any) -> None:
+            begun.set()
             calls.append(f"cluster {kw['n_workers']}")
 
+        def close(self) -> None:
+            calls.append("closed")
+
+    monkeypatch.setattr(runner.simulate, "warm_up", warm)
     monkeypatch.setattr(dask.distributed, "LocalCluster", FakeCluster)
-    monkeypatch.setattr(dask.distributed, "Client", lambda cluster, **kw: ("client", cluster))
+    monkeypatch.setattr(dask.distributed, "Client", lambda c, **kw: calls.append("client") or c)
     monkeypatch.delenv("IMPACTCELL_SCHEDULER", raising=False)
     make_client(None, 2, method="euler")
+    assert calls == ["cluster 2", "warm euler", "client"]
+    begun.clear()
+    calls.clear()
     make_client(None, 1)
-    assert calls == ["warm euler", "cluster 2", "warm event", "cluster 1"]
+    assert calls == ["cluster 1", "warm event", "client"]
+
+    # A failed warm-up (a kernel that does not compile) closes the cluster started meanwhile.
+    def broken(m: str | None = None) -> None:
+        begun.wait(10)
+        raise RuntimeError("no kernel")
+
+    calls.clear()
+    monkeypatch.setattr(runner.simulate, "warm_up", broken)
+    with pytest.raises(RuntimeError, match="no kernel"):
+        make_client(None, 2)
+    assert calls == ["cluster 2", "closed"]
+
     # A scheduler elsewhere: its workers do not share this machine's cache; nothing to warm.
     calls.clear()
     monkeypatch.setattr(dask.distributed, "Client", lambda address, **kw: ("client", address))
     make_client("tcp://127.0.0.1:1", None)
     assert calls == []
+
+
+def test_a_cluster_that_cannot_start_is_an_error_in_the_caller(monkeypatch) -> None:
+    import dask.distributed
+
+    class NoCluster:
+        def __init__(self, **kw: Any) -> None:
+            raise OSError("no free port")
+
+    monkeypatch.setattr(runner.simulate, "warm_up", lambda m=None: None)
+    monkeypatch.setattr(dask.distributed, "LocalCluster", NoCluster)
+    with pytest.raises(OSError, match="no free port"):
+        make_client(None, 2)
 
 
 def test_workers_get_one_blas_thread() -> None:
