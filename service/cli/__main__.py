@@ -1,7 +1,5 @@
 """``python -m service.cli``: the ``impactcell`` command."""
 
-import sys
+from service.cli import entry
 
-from service.cli import main
-
-sys.exit(main())
+entry()

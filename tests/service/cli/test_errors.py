@@ -378,3 +378,35 @@ def test_the_same_errors_in_a_real_process(
         assert text in one_error_line(p.stderr), argv
         assert time.monotonic() - t0 < 60, argv
     assert not (tmp_path / "d").exists()
+
+
+_ENTRY = """
+import atexit, sys, threading, time
+atexit.register(lambda: print("atexit handler ran", flush=True))
+def late():
+    while threading.main_thread().is_alive():  # until the command is done, and then some
+        time.sleep(0.01)
+    time.sleep(0.2)
+    print("thread finished", flush=True)
+threading.Thread(target=late).start()
+sys.argv = ["impactcell", *sys.argv[1:]]
+from service.cli import entry
+entry()
+"""
+
+
+@pytest.mark.parametrize(("argv", "code"), [(["studies"], 0), (["show", "/nonexistent.nc"], 2)])
+def test_the_command_exits_quickly_but_completely(argv: list[str], code: int) -> None:
+    """``entry`` skips the interpreter's teardown, not what a normal exit does: other threads
+    finish, atexit handlers run, everything printed arrives, the exit status is main's."""
+    p = subprocess.run(
+        [sys.executable, "-c", _ENTRY, *argv], capture_output=True, text=True, timeout=120,
+        cwd=ROOT,
+    )  # fmt: skip
+    assert p.returncode == code, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[-2:] == ["thread finished", "atexit handler ran"]
+    if code == 0:  # every shipped study listed, the last one included
+        assert len(lines) - 2 == len(list((ROOT / "studies").glob("*.yaml")))
+    else:
+        assert "no such results file" in p.stderr
