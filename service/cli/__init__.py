@@ -67,9 +67,13 @@ def entry() -> NoReturn:
     command writes is closed by the time :func:`main` returns, so this does the parts of a
     normal exit that matter -- wait for other non-daemon threads, run the ``atexit`` handlers
     (logging, multiprocessing, temporary files), flush stdout and stderr -- and skips the
-    rest. An exception out of :func:`main` (``--traceback``) exits the normal way.
+    rest. An exception out of :func:`main` (``--traceback``) exits the normal way, and so does
+    a command run under a profiler, tracer or debugger (``python -m cProfile``, coverage), which
+    write their results after the command returns.
     """
     code = main()
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        sys.exit(code)
     threading._shutdown()  # type: ignore[attr-defined]  # what a normal exit does first
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):

@@ -410,3 +410,15 @@ def test_the_command_exits_quickly_but_completely(argv: list[str], code: int) ->
         assert len(lines) - 2 == len(list((ROOT / "studies").glob("*.yaml")))
     else:
         assert "no such results file" in p.stderr
+
+
+@pytest.mark.slow  # a new Python process under the profiler
+def test_a_profiled_command_still_writes_its_profile(tmp_path: Path) -> None:
+    out = tmp_path / "studies.prof"
+    p = subprocess.run(
+        [sys.executable, "-m", "cProfile", "-o", str(out), "-m", "service.cli", "studies"],
+        capture_output=True, text=True, timeout=120, cwd=ROOT,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert out.stat().st_size > 0
+    assert "quick" in p.stdout
