@@ -21,10 +21,11 @@ service runs all its running studies through one pool; ``run_study`` runs one). 
 running tasks: each task polls its study's ``distributed.Event`` between points and inside each
 point, and every point has a wall-time and step budget (``worker.simulate.PointLimits``).
 
-Workers never compile the same kernel twice: before an embedded cluster starts (and before the
-workers warm up) this process compiles the method's numba kernels, or loads them from numba's
-on-disk cache, so the worker processes load that cache instead of each compiling the same
-kernels in parallel.
+Workers never compile the same kernel twice: while an embedded cluster's worker processes start,
+and before they are asked to load any kernel, this process compiles the method's numba kernels,
+or loads them from numba's on-disk cache, so the worker processes load that cache instead of
+each compiling the same kernels in parallel. A task is ``service.studies.tasks.chunk_task``: a
+worker imports only the simulator to run it.
 """
 
 from __future__ import annotations
