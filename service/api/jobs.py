@@ -312,7 +312,8 @@ class JobManager:
 
     def _ensure_pool_locked(self, method: str) -> ChunkPool:
         if self._client is None:
-            # An embedded cluster starts after ``method``'s kernels are in numba's cache here.
+            # An embedded cluster's workers start while ``method``'s kernels are compiled or
+            # loaded here; they load them from numba's cache only after (``make_client``).
             self._client, self._cluster = make_client(
                 self.settings.scheduler, self.settings.workers, method=method
             )
