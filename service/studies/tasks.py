@@ -2,8 +2,8 @@
 
 Kept apart from the runner on purpose: a worker imports the module of the function it is sent,
 and this one needs only ``worker`` (and ``distributed``, which the worker has loaded already),
-not the runner's study schema, datasets and point store (xarray, pandas, scipy, pydantic:
-~1.3 s of imports per worker process before its first point).
+not the runner's study schema, datasets and point store (xarray, pandas, scipy.sparse,
+pydantic: ~1.3 s of imports per worker process before its first point).
 """
 
 from __future__ import annotations
