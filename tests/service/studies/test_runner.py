@@ -308,10 +308,12 @@ def test_a_worker_imports_only_the_simulator_to_run_a_chunk(tmp_path: Path) -> N
     assert [f.__module__ for f in sent] == ["service.studies.tasks"]
     code = (
         "import sys, service.studies.tasks; "
-        "print(sorted(m for m in ('xarray', 'pandas', 'pydantic', 'sqlalchemy', "
+        "print(sorted(m for m in ('xarray', 'pandas', 'scipy.sparse', 'pydantic', 'sqlalchemy', "
         "'service.studies.runner') if m in sys.modules))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
 
