@@ -30,6 +30,7 @@ worker imports only the simulator to run it.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
@@ -38,6 +39,7 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -53,15 +55,13 @@ from service.studies.points import (
 )
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
-from service.studies.tasks import chunk_task
+from service.studies.tasks import chunk_task, compute_chunk
 from service.studies.variables import OUTCOMES, outcome_names
 from worker import simulate
 from worker.simulate import (
     PointLimits,
     SolverSettings,
     failed_result,
-    simulate_chunk,
-    simulate_line,
 )
 from worker.solvers.settings import DEFAULT_METHOD
 
@@ -133,33 +133,22 @@ def make_client(
         return Client(scheduler, timeout=CONNECT_TIMEOUT), None
     _worker_environ()
     n = workers or os.cpu_count() or 1
-    started: dict[str, Any] = {}
-
-    def start() -> None:
+    with ThreadPoolExecutor(1, thread_name_prefix="impactcell-cluster-start") as pool:
+        starting = pool.submit(
+            LocalCluster,
+            n_workers=n,
+            threads_per_worker=1,  # the kernels hold the GIL: parallelism comes from processes
+            processes=True,
+            dashboard_address=":0",  # a free port: never clash with a running dask
+            silence_logs=40,  # logging.ERROR
+        )
         try:
-            started["cluster"] = LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,  # the kernels hold the GIL: processes give parallelism
-                processes=True,
-                dashboard_address=":0",  # a free port: never clash with a running dask
-                silence_logs=40,  # logging.ERROR
-            )
-        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
-            started["error"] = exc
-
-    starting = threading.Thread(target=start, name="impactcell-cluster-start")
-    starting.start()
-    try:
-        simulate.warm_up(method)
-    except BaseException:
-        starting.join()
-        if "cluster" in started:
-            started["cluster"].close()
-        raise
-    starting.join()
-    if "error" in started:
-        raise started["error"]
-    cluster = started["cluster"]
+            simulate.warm_up(method)
+        except BaseException:
+            with contextlib.suppress(Exception):  # a cluster that failed too: nothing to close
+                starting.result().close()
+            raise
+        cluster = starting.result()  # a cluster that cannot start raises here
     try:
         return Client(cluster), cluster
     except BaseException:
@@ -335,8 +324,9 @@ class StudyRun:
             if cancel():
                 raise Cancelled
             start, stop = self.pieces.popleft()
-            run = simulate_line if self.lines else simulate_chunk
-            records = run(self.study.points(start, stop), self.solver, budget, cancel)
+            records = compute_chunk(
+                self.study.points(start, stop), self.solver, budget, cancel, self.lines
+            )
             if len(records) < stop - start:  # cancelled inside the chunk
                 raise Cancelled
             self.finished(start, stop, records, False)

@@ -9,11 +9,12 @@ pydantic: ~1.3 s of imports per worker process before its first point).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from worker.simulate import simulate_chunk, simulate_line
 
-__all__ = ["CANCEL_POLL_S", "CancelProbe", "chunk_task"]
+__all__ = ["CANCEL_POLL_S", "CancelProbe", "chunk_task", "compute_chunk"]
 
 CANCEL_POLL_S = 1.0  # how often a running task asks whether its study was cancelled
 
@@ -57,7 +58,18 @@ def chunk_task(
     cancel_event: str,
     line: bool = False,
 ) -> list[dict[str, Any]]:
-    """One dask task: ``simulate_chunk`` (``line``: ``simulate_line``, one sweep line) with the
-    study's cancel event polled inside."""
+    """One dask task: :func:`compute_chunk` with the study's cancel event polled inside."""
+    return compute_chunk(points, solver, limits, CancelProbe(cancel_event), line)
+
+
+def compute_chunk(
+    points: list[dict[str, Any]],
+    solver: dict[str, Any],
+    limits: dict[str, Any],
+    cancel: Callable[[], bool],
+    line: bool = False,
+) -> list[dict[str, Any]]:
+    """A chunk's records, here or on a worker: ``simulate_chunk``, or ``simulate_line`` for one
+    sweep line (each point starts from the one before)."""
     run = simulate_line if line else simulate_chunk
-    return run(points, solver, limits, CancelProbe(cancel_event))
+    return run(points, solver, limits, cancel)
