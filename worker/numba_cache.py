@@ -16,7 +16,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["configure", "source_key"]
+__all__ = ["configure", "on_disk", "source_key"]
 
 _ROOT = Path(__file__).resolve().parent
 
@@ -65,3 +65,11 @@ def configure() -> str | None:
             config.CACHE_DIR = str(target)
             return str(target)
     return None
+
+
+def on_disk(function: object) -> bool | None:
+    """Whether a ``@njit(cache=True)`` function is in numba's on-disk cache (None: unknown)."""
+    try:
+        return bool(function._cache._cache_file._load_index())  # type: ignore[attr-defined]
+    except Exception:  # numba internals: a missing attribute means we cannot tell
+        return None

@@ -21,8 +21,14 @@ import numpy as np
 
 from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
+from worker.numba_cache import on_disk
 from worker.solvers.dispatch import KERNELS, RUNS
-from worker.solvers.engine import DIVERGENCE_FACTOR, linear_reference_db, run_point
+from worker.solvers.engine import (
+    DIVERGENCE_FACTOR,
+    compile_helpers,
+    linear_reference_db,
+    run_point,
+)
 from worker.solvers.event.kernel import EVENT_FIELDS
 from worker.solvers.linear import linear_tail
 from worker.solvers.measure import HISTORY_FIELDS
@@ -288,10 +294,7 @@ def _kernel(method: str):
 
 def kernels_cached(method: str) -> bool | None:
     """Whether the method's compiled kernel is in numba's on-disk cache (None: unknown)."""
-    try:
-        return bool(_kernel(method)._cache._cache_file._load_index())
-    except Exception:  # numba internals: a missing attribute means we cannot tell
-        return None
+    return on_disk(_kernel(method))
 
 
 _warm: set[str] = set()  # methods whose kernels are compiled or loaded in this process
@@ -317,6 +320,7 @@ def warm_up(method: str | None = None, *, quiet: bool = False) -> None:
         s = SolverSettings(method=m, steps_per_period=64, max_periods=3, window=1)
         # a point that impacts and a point that is linear at once: every kernel path compiles
         simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
+        compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
         if cached is False and not quiet:
             print(f"impactcell: {m!r} kernels ready in {time.perf_counter() - t0:.0f} s",
                   file=sys.stderr, flush=True)  # fmt: skip

@@ -171,3 +171,55 @@ def test_first_compilation_says_what_it_does(monkeypatch, capsys):
 def test_kernels_are_in_the_on_disk_cache_after_warm_up():
     simulate.warm_up()
     assert all(simulate.kernels_cached(m) for m in ("event", "exponential", "euler"))
+
+
+_NOTHING_LEFT_TO_COMPILE = r"""
+import importlib, json, pkgutil
+import worker
+from numba.core.registry import CPUDispatcher
+from worker.model import CellParams
+from worker.simulate import SolverSettings, simulate_point, warm_up
+
+def compiled():
+    out = {}
+    for info in pkgutil.walk_packages(worker.__path__, "worker."):
+        mod = importlib.import_module(info.name)
+        for name, obj in vars(mod).items():
+            if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__:
+                out[f"{mod.__name__}.{name}"] = sum(obj.stats.cache_misses.values())
+    return out
+
+warm_up("event", quiet=True)
+before = compiled()
+cell = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1)
+seen = set()
+# linear after a transient, orbits found by extrapolation, an irregular response
+for g in (3.37, 1.03, 0.45, 2.35):
+    seen.add(simulate_point(CellParams(gamma_r=g, **cell), SolverSettings()).outcome)
+seen.add(simulate_point(CellParams(gamma_r=0.85, **cell),
+                        SolverSettings(max_periods=200, window=10)).outcome)
+after = compiled()
+print(json.dumps([sorted(seen), sorted(k for k in after if after[k] != before.get(k))]))
+"""
+
+
+@pytest.mark.slow
+def test_after_warm_up_no_point_compiles_anything(tmp_path):
+    # On a fresh cache, warm_up compiles what points need (the kernels, and the engine's
+    # helpers that only extrapolated orbits reach); a worker then only loads them. Before, every
+    # worker compiled the helpers at its first periodic point (~12 s, all workers at once).
+    # A fresh interpreter on an empty cache: what this process compiled cannot hide anything.
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    script = [sys.executable, "-c", _NOTHING_LEFT_TO_COMPILE]
+    out = subprocess.run(script, cwd=root, env=env, capture_output=True, text=True, check=True,
+                         timeout=900).stdout  # fmt: skip
+    seen, compiled_later = json.loads(out.strip().splitlines()[-1])
+    assert {"linear", "periodic", "irregular"} <= set(seen), seen
+    assert compiled_later == [], f"compiled after warm_up: {compiled_later}"

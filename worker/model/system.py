@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -85,37 +86,12 @@ def rayleigh_constants(omegas: np.ndarray, xi_b: float) -> tuple[float, float]:
 
 
 def assemble(p: CellParams) -> System:
-    """Build M, C, K, W, X for ``p`` (docs/model.md §4)."""
-    n = p.modes
-    b = betas(n)
-    d = mode_means(n)
-    tip = tip_values(n)
-    N = n + 1
+    """Build M, C, K, W, X for ``p`` (docs/model.md §4).
 
-    M = np.zeros((N, N))
-    M[:n, :n] = np.eye(n)
-    M[:n, n] = -d
-    if p.coupling == "paper":
-        M[n, n] = 1.0 / p.theta
-    else:
-        M[n, :n] = -d
-        M[n, n] = 1.0 / p.theta + 1.0
-
-    k_beam = p.sigma * b**4
-    K = np.diag(np.append(k_beam, 1.0 / (p.theta * p.gamma_s**2)))
-
-    omegas = b**2 * math.sqrt(p.sigma)
-    alpha_r, beta_r = rayleigh_constants(omegas, p.beam_xi)
-    C = np.zeros((N, N))
-    C[:n, :n] = np.diag(alpha_r + beta_r * k_beam)
-    C[n, n] = 2.0 * p.xi / (p.theta * p.gamma_s)
-
-    W = np.append(tip, 0.0)
-    X = np.append(tip, 1.0) if p.coupling == "paper" else W.copy()
-
-    # M is block-triangular (paper) or symmetric positive definite (full); a dense inverse of a
-    # (n+1)-square matrix is exact enough and is computed once per point.
-    Minv = np.linalg.inv(M)
+    The matrices do not depend on γ_r, so the points of one spectrum share them (computed once
+    per process and cell; callers never modify a ``System``'s arrays)."""
+    M, C, K, W, X, d, Minv = _matrices(p.modes, p.coupling, p.theta, p.sigma, p.gamma_s,
+                                       p.xi, p.beam_xi)  # fmt: skip
     return System(
         params=p,
         M=M,
@@ -128,6 +104,41 @@ def assemble(p: CellParams) -> System:
         f_cos=2.0 * p.xi * p.gamma_r,
         Minv=Minv,
     )
+
+
+@functools.lru_cache(maxsize=16)
+def _matrices(n: int, coupling: str, theta: float, sigma: float, gamma_s: float, xi: float,
+              beam_xi: float) -> tuple[np.ndarray, ...]:  # fmt: skip
+    b = betas(n)
+    d = mode_means(n)
+    tip = tip_values(n)
+    N = n + 1
+
+    M = np.zeros((N, N))
+    M[:n, :n] = np.eye(n)
+    M[:n, n] = -d
+    if coupling == "paper":
+        M[n, n] = 1.0 / theta
+    else:
+        M[n, :n] = -d
+        M[n, n] = 1.0 / theta + 1.0
+
+    k_beam = sigma * b**4
+    K = np.diag(np.append(k_beam, 1.0 / (theta * gamma_s**2)))
+
+    omegas = b**2 * math.sqrt(sigma)
+    alpha_r, beta_r = rayleigh_constants(omegas, beam_xi)
+    C = np.zeros((N, N))
+    C[:n, :n] = np.diag(alpha_r + beta_r * k_beam)
+    C[n, n] = 2.0 * xi / (theta * gamma_s)
+
+    W = np.append(tip, 0.0)
+    X = np.append(tip, 1.0) if coupling == "paper" else W.copy()
+
+    # M is block-triangular (paper) or symmetric positive definite (full); a dense inverse of a
+    # (n+1)-square matrix is exact enough and is computed once per cell.
+    Minv = np.linalg.inv(M)
+    return M, C, K, W, X, d, Minv
 
 
 # --------------------------------------------------------------------------- linear references
