@@ -92,6 +92,25 @@ def test_assembly_paper_and_full():
     assert f.kappa == pytest.approx(1.3) and s.kappa == 1.0
 
 
+def test_a_cells_matrices_are_assembled_once_and_only_for_that_cell():
+    base = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, modes=4)
+    a = assemble(CellParams(gamma_r=1.0, **base))
+    b = assemble(CellParams(gamma_r=2.5, g1=0.7, **base))  # γ_r and the gaps: the same cell
+    assert a.M is b.M and a.C is b.C and a.Minv is b.Minv
+    assert a.f_cos != b.f_cos  # the forcing does depend on γ_r
+    for change in (dict(theta=0.31), dict(sigma=0.06), dict(gamma_s=1.1), dict(xi=0.06),
+                   dict(xi_b=0.01), dict(modes=5), dict(coupling="full")):  # fmt: skip
+        c = assemble(CellParams(gamma_r=1.0, **{**base, **change}))
+        assert c.M is not a.M, change
+        assert not (c.M.shape == a.M.shape and np.array_equal(c.M, a.M)
+                    and np.array_equal(c.C, a.C) and np.array_equal(c.K, a.K)), change  # fmt: skip
+    # -0.0 == 0.0 as a number, but a damping of -0.0 has its own -0.0 entries
+    zero = assemble(CellParams(gamma_r=1.0, **{**base, "xi": 0.0}))
+    negz = assemble(CellParams(gamma_r=1.0, **{**base, "xi": -0.0}))
+    assert math.copysign(1.0, zero.C[-1, -1]) == 1.0
+    assert math.copysign(1.0, negz.C[-1, -1]) == -1.0
+
+
 def test_rayleigh_damping_gives_xi_b_at_modes_1_and_5():
     p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, xi=0.05, xi_b=0.02, modes=7)
     s = assemble(p)

@@ -90,8 +90,11 @@ def assemble(p: CellParams) -> System:
 
     The matrices do not depend on γ_r, so the points of one spectrum share them (computed once
     per process and cell; callers never modify a ``System``'s arrays)."""
-    M, C, K, W, X, d, Minv = _matrices(p.modes, p.coupling, p.theta, p.sigma, p.gamma_s,
-                                       p.xi, p.beam_xi)  # fmt: skip
+    # -0.0 == 0.0 as a key, yet a damping of -0.0 gives -0.0 entries: the signs are part of the
+    # key, so a hit is the computation's own result, bit for bit
+    key = (p.modes, p.coupling, p.theta, p.sigma, p.gamma_s, p.xi, p.beam_xi,
+           math.copysign(1.0, p.xi), math.copysign(1.0, p.beam_xi))  # fmt: skip
+    M, C, K, W, X, d, Minv = _matrices(key)
     return System(
         params=p,
         M=M,
@@ -107,8 +110,8 @@ def assemble(p: CellParams) -> System:
 
 
 @functools.lru_cache(maxsize=16)
-def _matrices(n: int, coupling: str, theta: float, sigma: float, gamma_s: float, xi: float,
-              beam_xi: float) -> tuple[np.ndarray, ...]:  # fmt: skip
+def _matrices(key: tuple) -> tuple[np.ndarray, ...]:
+    n, coupling, theta, sigma, gamma_s, xi, beam_xi = key[:7]
     b = betas(n)
     d = mode_means(n)
     tip = tip_values(n)
