@@ -1,6 +1,11 @@
 """The public door (worker/simulate.py): records, histories, settings, refusals, warm-up."""
 
+import json
 import math
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -209,12 +214,6 @@ def test_after_warm_up_no_point_compiles_anything(tmp_path):
     # helpers that only extrapolated orbits reach); a worker then only loads them. Before, every
     # worker compiled the helpers at its first periodic point (~12 s, all workers at once).
     # A fresh interpreter on an empty cache: what this process compiled cannot hide anything.
-    import json
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
     root = Path(__file__).resolve().parents[2]
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     script = [sys.executable, "-c", _NOTHING_LEFT_TO_COMPILE]
