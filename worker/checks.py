@@ -149,18 +149,14 @@ def violation(name: str, value: Any, meta: dict[str, Any]) -> str | None:
 
 def out_of_bounds(values: Any, meta: dict[str, Any]) -> Any:
     """Where ``values`` (a number or a numpy array) violate a field's bounds (True = bad)."""
+    v: Any
     if type(values) is float:
-        # one number: the same tests without numpy (every point's parameters pass here, and
-        # numpy's scalar round trip cost ~10 µs a field)
-        return not (
-            math.isfinite(values)
-            and ("gt" not in meta or values > meta["gt"])
-            and ("ge" not in meta or values >= meta["ge"])
-            and ("lt" not in meta or values < meta["lt"])
-            and ("le" not in meta or values <= meta["le"])
-        )
-    v = np.asarray(values, dtype=np.float64)
-    bad = ~np.isfinite(v)
+        # one number stays a Python float (every point's parameters pass here; numpy's scalar
+        # round trip cost ~10 µs a field); the tests below are the same for both
+        v, bad = values, not math.isfinite(values)
+    else:
+        v = np.asarray(values, dtype=np.float64)
+        bad = ~np.isfinite(v)
     if "gt" in meta:
         bad |= v <= meta["gt"]
     if "ge" in meta:
