@@ -228,6 +228,65 @@ def test_missing_ranges_and_bad_chunks(tmp_path: Path) -> None:
         store.collect()
 
 
+def _assert_same_columns(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> None:
+    assert a.keys() == b.keys()
+    for name in a:
+        assert a[name].dtype == b[name].dtype, name
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def test_a_store_collates_the_chunks_it_wrote_without_reading_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    _fill(store, _with_failure(_records(study)), 4)
+    from_disk = StudyStore(tmp_path, study).collect()  # a fresh store reads the files
+    loads: list[Path] = []
+    real_load = np.load
+    monkeypatch.setattr(np, "load", lambda path, **kw: loads.append(path) or real_load(path, **kw))
+    _assert_same_columns(store.collect(), from_disk)
+    assert not store.has_retry_chunks()
+    assert loads == []
+    assert bool(from_disk["failed"][1]) and "made to fail" in from_disk["reason"][1]
+
+
+def test_a_chunk_rewritten_by_another_run_is_read_from_its_file(tmp_path: Path) -> None:
+    study = _study()
+    records = _records(study)
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    _fill(store, records, 3)
+    other = StudyStore(tmp_path, study)  # another run of the study, writing the same chunk
+    other.write_chunk(0, 3, _with_failure(records)[0:3], retry=True)
+    cols = store.collect()
+    assert bool(cols["failed"][1]) and "made to fail" in cols["reason"][1]
+    assert store.has_retry_chunks()
+
+
+def test_chunks_beyond_the_held_points_are_read_from_their_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import service.studies.chunks as chunks
+
+    monkeypatch.setattr(chunks, "HOLD_POINTS", 4)
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    _fill(store, _records(study), 4)  # 0-4 is held, 4-6 is not
+    loads: list[str] = []
+    real_load = np.load
+    monkeypatch.setattr(
+        np, "load", lambda path, **kw: loads.append(Path(path).name) or real_load(path, **kw)
+    )
+    cols = store.collect()
+    assert loads == ["4-6.npz"]
+    _assert_same_columns(cols, StudyStore(tmp_path, study).collect())
+    store.remove_chunks()
+    assert store._held == {} and store._held_points == 0
+
+
 def test_atomic_write_leaves_nothing_on_failure(tmp_path: Path) -> None:
     target = tmp_path / "f.bin"
 
