@@ -10,13 +10,14 @@ share one cache wherever they are installed.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["configure", "on_disk", "source_key"]
+__all__ = ["configure", "mark_done", "marked_done", "on_disk", "source_key"]
 
 _ROOT = Path(__file__).resolve().parent
 
@@ -73,3 +74,24 @@ def on_disk(function: object) -> bool | None:
         return bool(function._cache._cache_file._load_index())  # type: ignore[attr-defined]
     except Exception:  # numba internals: a missing attribute means we cannot tell
         return None
+
+
+def _mark(name: str) -> Path | None:
+    from numba.core import config
+
+    return Path(config.CACHE_DIR) / f"{name}.done" if config.CACHE_DIR else None
+
+
+def mark_done(name: str) -> None:
+    """Record in the cache directory that ``name`` (a warm-up) finished: all it compiles is
+    there, for these sources (the directory is keyed by them). Nothing where it cannot."""
+    path = _mark(name)
+    if path is not None:
+        with contextlib.suppress(OSError):  # a read-only cache: then nothing is ready
+            path.touch()
+
+
+def marked_done(name: str) -> bool:
+    """Whether :func:`mark_done` recorded ``name`` for these sources."""
+    path = _mark(name)
+    return path is not None and path.exists()

@@ -21,7 +21,7 @@ import numpy as np
 
 from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
-from worker.numba_cache import on_disk
+from worker.numba_cache import mark_done, marked_done, on_disk
 from worker.solvers.dispatch import KERNELS, RUNS
 from worker.solvers.engine import (
     DIVERGENCE_FACTOR,
@@ -59,7 +59,9 @@ __all__ = [
     "PointLimits",
     "PointResult",
     "SolverSettings",
+    "cache_ready",
     "failed_result",
+    "fill_cache",
     "initial_state",
     "kernels_cached",
     "linear_reference",
@@ -300,6 +302,23 @@ def kernels_cached(method: str) -> bool | None:
 _warm: set[str] = set()  # methods whose kernels are compiled or loaded in this process
 
 
+def cache_ready(method: str | None = None) -> bool:
+    """Whether a :func:`warm_up` of ``method`` (default: every method) finished with these
+    sources, so numba's on-disk cache holds everything a point compiles: a process starting
+    workers need not load anything itself, and its workers load it as they start."""
+    return all(
+        marked_done(f"warm-{m}") and kernels_cached(m)
+        for m in (METHODS if method is None else (method,))
+    )
+
+
+def fill_cache(method: str | None = None) -> None:
+    """Compile ``method``'s code into numba's on-disk cache unless it is there: what a process
+    that hands points to local workers does before they load it (no worker compiles)."""
+    if not cache_ready(method):
+        warm_up(method)
+
+
 def warm_up(method: str | None = None, *, quiet: bool = False) -> None:
     """Compile (or load from numba's cache) a method's kernels once per process (default:
     every method), so no point's ``wall_s`` includes it. A first compilation on a machine says
@@ -321,6 +340,7 @@ def warm_up(method: str | None = None, *, quiet: bool = False) -> None:
         # a point that impacts and a point that is linear at once: every kernel path compiles
         simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
         compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
+        mark_done(f"warm-{m}")
         if cached is False and not quiet:
             print(f"impactcell: {m!r} kernels ready in {time.perf_counter() - t0:.0f} s",
                   file=sys.stderr, flush=True)  # fmt: skip

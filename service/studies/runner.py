@@ -95,8 +95,22 @@ def default_chunk_size(points: int, workers: int) -> int:
 
 
 def warm_up(client: Any, method: str = DEFAULT_METHOD) -> None:
-    """Compile/load a method's numba kernels in every worker before timing anything."""
+    """Load a method's numba kernels in every worker before timing anything. Local workers
+    share this process's numba cache: it is filled here first (if it is not), so no two
+    workers compile the same kernel."""
+    if _is_local(client):
+        simulate.fill_cache(method)
     client.run(simulate.warm_up, method)
+
+
+def _load_at_start(method: str | None) -> str:
+    """The preload of a LocalCluster's workers (the text of a module, which dask runs in each
+    worker as it starts, before it joins the cluster): load ``method``'s kernels from numba's
+    cache, in every worker at once, while the cluster is still starting."""
+    return (
+        "from worker.simulate import warm_up\n\n\n"
+        f"def dask_setup(worker):\n    warm_up({method!r})\n"
+    )
 
 
 def _is_local(client: Any) -> bool:
@@ -122,10 +136,11 @@ def make_client(
 ) -> tuple[Any, Any]:
     """A dask client on ``scheduler`` if given, else on a new LocalCluster of ``workers``.
 
-    A LocalCluster's worker processes start (~1 s of imports) while ``method``'s kernels
-    (``None``: every method's) are compiled or loaded here; this returns once both are done, so
-    the workers, which load kernels only when asked (:func:`warm_up`, or their first point),
-    find them in numba's on-disk cache.
+    When numba's on-disk cache holds ``method``'s kernels (``None``: every method's), each
+    worker loads them as it starts (``_load_at_start``) and this process loads nothing. Else
+    the worker processes start (~1 s of imports) while the kernels are compiled here, and this
+    returns once both are done, so the workers, which then load kernels only when asked
+    (:func:`warm_up`, or their first point), find them in the cache.
     """
     from dask.distributed import Client, LocalCluster
 
@@ -133,6 +148,7 @@ def make_client(
         return Client(scheduler, timeout=CONNECT_TIMEOUT), None
     _worker_environ()
     n = workers or os.cpu_count() or 1
+    ready = simulate.cache_ready(method)
     with ThreadPoolExecutor(1, thread_name_prefix="impactcell-cluster-start") as pool:
         starting = pool.submit(
             LocalCluster,
@@ -141,9 +157,11 @@ def make_client(
             processes=True,
             dashboard_address=":0",  # a free port: never clash with a running dask
             silence_logs=40,  # logging.ERROR
+            preload=[_load_at_start(method)] if ready else [],
         )
         try:
-            simulate.warm_up(method)
+            if not ready:
+                simulate.warm_up(method)
         except BaseException:
             with contextlib.suppress(Exception):  # a cluster that failed too: nothing to close
                 starting.result().close()
@@ -701,8 +719,6 @@ def run_study(
             if serial or not run.pieces:
                 run.run_serial(stop_now, limits)
                 return run.collate(0 if serial else nworkers)
-            if _is_local(client):
-                simulate.warm_up(study.solver.method)  # fill numba's cache before the workers
             warm_up(client, study.solver.method)
             pool = ChunkPool(client, max_in_flight or max(8, 4 * nworkers), limits)
             pool.add(study.id, run)

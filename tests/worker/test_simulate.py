@@ -183,7 +183,7 @@ import importlib, json, pkgutil
 import worker
 from numba.core.registry import CPUDispatcher
 from worker.model import CellParams
-from worker.simulate import SolverSettings, simulate_point, warm_up
+from worker.simulate import SolverSettings, cache_ready, simulate_point, warm_up
 
 def compiled():
     out = {}
@@ -194,7 +194,9 @@ def compiled():
                 out[f"{mod.__name__}.{name}"] = sum(obj.stats.cache_misses.values())
     return out
 
+ready = [cache_ready("event")]
 warm_up("event", quiet=True)
+ready.append(cache_ready("event"))
 before = compiled()
 cell = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1)
 seen = set()
@@ -204,7 +206,7 @@ for g in (3.37, 1.03, 0.45, 2.35):
 seen.add(simulate_point(CellParams(gamma_r=0.85, **cell),
                         SolverSettings(max_periods=200, window=10)).outcome)
 after = compiled()
-print(json.dumps([sorted(seen), sorted(k for k in after if after[k] != before.get(k))]))
+print(json.dumps([sorted(seen), sorted(k for k in after if after[k] != before.get(k)), ready]))
 """
 
 
@@ -219,6 +221,8 @@ def test_after_warm_up_no_point_compiles_anything(tmp_path):
     script = [sys.executable, "-c", _NOTHING_LEFT_TO_COMPILE]
     out = subprocess.run(script, cwd=root, env=env, capture_output=True, text=True, check=True,
                          timeout=900).stdout  # fmt: skip
-    seen, compiled_later = json.loads(out.strip().splitlines()[-1])
+    seen, compiled_later, ready = json.loads(out.strip().splitlines()[-1])
     assert {"linear", "periodic", "irregular"} <= set(seen), seen
     assert compiled_later == [], f"compiled after warm_up: {compiled_later}"
+    # the finished warm-up is recorded in the cache (workers then load the kernels as they start)
+    assert ready == [False, True]

@@ -209,9 +209,9 @@ def _study_file(folder: Path, study: Any) -> Path:
 
 
 def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
-    """The worker processes start while the parent compiles (or loads) the kernels; the client
-    comes only when both are done, so the workers, asked to load kernels after that, load the
-    parent's cache instead of compiling."""
+    """On a cache without the kernels, the worker processes start while the parent compiles
+    them; the client comes only when both are done, so the workers, asked to load kernels
+    after that, load the parent's cache instead of compiling."""
     import threading
 
     import dask.distributed
@@ -227,11 +227,13 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
     class FakeCluster:
         def __init__(self, **kw: Any) -> None:
             begun.set()
-            calls.append(f"cluster {kw['n_workers']}")
+            calls.append(f"cluster {kw['n_workers']}" + (" preload" if kw["preload"] else ""))
 
         def close(self) -> None:
             calls.append("closed")
 
+    ready: set[str | None] = set()
+    monkeypatch.setattr(runner.simulate, "cache_ready", lambda m=None: m in ready)
     monkeypatch.setattr(runner.simulate, "warm_up", warm)
     monkeypatch.setattr(dask.distributed, "LocalCluster", FakeCluster)
     monkeypatch.setattr(dask.distributed, "Client", lambda c, **kw: calls.append("client") or c)
@@ -242,6 +244,13 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
     calls.clear()
     make_client(None, 1)
     assert calls == ["cluster 1", "warm event", "client"]
+
+    # A warm cache: the workers load the kernels as they start; the parent loads nothing.
+    ready.add("euler")
+    calls.clear()
+    make_client(None, 2, method="euler")
+    assert calls == ["cluster 2 preload", "client"]
+    ready.clear()
 
     # A failed warm-up (a kernel that does not compile) closes the cluster started meanwhile.
     def broken(m: str | None = None) -> None:
@@ -259,6 +268,34 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
     monkeypatch.setattr(dask.distributed, "Client", lambda address, **kw: ("client", address))
     make_client("tcp://127.0.0.1:1", None)
     assert calls == []
+
+
+_WORKERS_LOAD_AT_START = r"""
+import json
+from service.studies.runner import _close, make_client
+from worker import simulate
+
+assert simulate.cache_ready("event")
+client, cluster = make_client(None, 2, method="event")
+try:
+    loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
+    print(json.dumps([sorted(simulate._warm), sorted(loaded.values())]))
+finally:
+    _close(client, cluster)
+"""
+
+
+@pytest.mark.slow  # real worker processes
+def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none() -> None:
+    root = Path(__file__).resolve().parents[3]
+    env = {k: v for k, v in os.environ.items() if k != "IMPACTCELL_SCHEDULER"}
+    fill = "from worker import simulate; simulate.fill_cache('event')"
+    subprocess.run([sys.executable, "-c", fill], cwd=root, env=env, check=True, timeout=600)
+    out = subprocess.run([sys.executable, "-c", _WORKERS_LOAD_AT_START], cwd=root, env=env,
+                         capture_output=True, text=True, check=True, timeout=300).stdout  # fmt: skip
+    parent, workers = json.loads(out.strip().splitlines()[-1])
+    assert parent == []  # nothing compiled or loaded in the process that only hands out points
+    assert workers == [["event"], ["event"]]  # loaded before anyone asked (no warm_up yet)
 
 
 def test_a_cluster_that_cannot_start_is_an_error_in_the_caller(monkeypatch) -> None:
