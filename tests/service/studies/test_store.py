@@ -235,6 +235,16 @@ def _assert_same_columns(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> 
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
+def _record_loads(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names of the files ``np.load`` opens from now on."""
+    loads: list[str] = []
+    real = np.load
+    monkeypatch.setattr(
+        np, "load", lambda path, **kw: loads.append(Path(path).name) or real(path, **kw)
+    )
+    return loads
+
+
 def test_a_store_collates_the_chunks_it_wrote_without_reading_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -243,9 +253,7 @@ def test_a_store_collates_the_chunks_it_wrote_without_reading_them(
     store.prepare()
     _fill(store, _with_failure(_records(study)), 4)
     from_disk = StudyStore(tmp_path, study).collect()  # a fresh store reads the files
-    loads: list[Path] = []
-    real_load = np.load
-    monkeypatch.setattr(np, "load", lambda path, **kw: loads.append(path) or real_load(path, **kw))
+    loads = _record_loads(monkeypatch)
     _assert_same_columns(store.collect(), from_disk)
     assert not store.has_retry_chunks()
     assert loads == []
@@ -275,11 +283,7 @@ def test_chunks_beyond_the_held_points_are_read_from_their_files(
     store = StudyStore(tmp_path, study)
     store.prepare()
     _fill(store, _records(study), 4)  # 0-4 is held, 4-6 is not
-    loads: list[str] = []
-    real_load = np.load
-    monkeypatch.setattr(
-        np, "load", lambda path, **kw: loads.append(Path(path).name) or real_load(path, **kw)
-    )
+    loads = _record_loads(monkeypatch)
     cols = store.collect()
     assert loads == ["4-6.npz"]
     _assert_same_columns(cols, StudyStore(tmp_path, study).collect())
