@@ -270,6 +270,25 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
     assert calls == []
 
 
+def test_local_workers_are_asked_to_load_a_method_only_after_this_process_filled_the_cache(
+    monkeypatch,
+) -> None:
+    # The job manager meets methods one by one on one cluster: a later method must be compiled
+    # once, here, before the workers (which share this machine's cache) load it.
+    calls: list[str] = []
+
+    class FakeClient:
+        def run(self, fn: Any, method: str) -> None:
+            calls.append(f"workers {fn.__name__} {method}")
+
+    monkeypatch.setattr(runner.simulate, "fill_cache", lambda m=None: calls.append(f"fill {m}"))
+    for local in (True, False):
+        monkeypatch.setattr(runner, "_is_local", lambda client, local=local: local)
+        runner.warm_up(FakeClient(), "euler")
+    # a scheduler elsewhere: its workers have their own cache, nothing to fill here
+    assert calls == ["fill euler", "workers warm_up euler", "workers warm_up euler"]
+
+
 _WORKERS_LOAD_AT_START = r"""
 import json
 from service.studies.runner import _close, make_client
