@@ -200,19 +200,6 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
-def _embedded_client(workers: int | None) -> tuple[Any, Any]:
-    from dask.distributed import Client, LocalCluster
-
-    cluster = LocalCluster(
-        n_workers=workers or os.cpu_count() or 1,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=40,
-    )
-    return Client(cluster), cluster
-
-
 def run_suite(
     directory: str | os.PathLike[str] | None = None,
     baselines: str | os.PathLike[str] | None = None,
@@ -293,12 +280,11 @@ def run_suite(
                     f"--url needs service.client, which cannot be imported: {exc}"
                 ) from None
             client = Client(url, token=token)
-        elif not serial and scheduler:
-            from dask.distributed import Client as DaskClient
-
-            client = DaskClient(scheduler, timeout="30s")
         elif not serial:
-            client, cluster = _embedded_client(workers)
+            from service.studies.runner import make_client
+
+            # every method's kernels: the suite's studies use all three
+            client, cluster = make_client(scheduler, workers, method=None)
         for k, entry in enumerate(entries, 1):
             t = time.perf_counter()
             cmp = _run_one(entry, base_dir, run_dir, url, client, serial, update_baseline)

@@ -219,6 +219,27 @@ def test_update_baseline_rewrites_and_reports_what_changed(suite: dict[str, Path
     assert again.ok and [s.status for s in again.studies] == ["passed", "passed"]
 
 
+def test_the_suite_computes_on_the_runners_client_with_every_methods_kernels(
+    suite: dict[str, Path], monkeypatch
+) -> None:
+    # One place makes the cluster (one BLAS thread per worker, kernels loaded as the workers
+    # start); the suite's studies use all three methods.
+    import service.studies.runner as runner
+
+    asked: list[tuple[Any, ...]] = []
+
+    def make_client(scheduler: Any, workers: Any, *, method: Any = "event") -> Any:
+        asked.append((scheduler, workers, method))
+        raise RuntimeError("no cluster in this test")
+
+    monkeypatch.setattr(runner, "make_client", make_client)
+    for scheduler in (None, "tcp://127.0.0.1:8786"):
+        with pytest.raises(RuntimeError, match="no cluster"):
+            run_suite(suite["suite"], suite["baselines"], data_dir=suite["data"],
+                      report_dir=suite["report"], scheduler=scheduler, workers=3)  # fmt: skip
+    assert asked == [(None, 3, None), ("tcp://127.0.0.1:8786", 3, None)]
+
+
 def test_a_missing_baseline_is_bad_usage_found_before_anything_runs(
     suite: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
