@@ -36,7 +36,10 @@ API_TOKEN = "s3cret"
 
 # A coarse, fast solver: these tests check the service, not the numbers (tests/worker do that).
 FAST_SOLVER = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}
-# Tests that act mid-study need a study that lasts seconds even on a fast, idle machine.
+# Tests that act mid-study need a study that lasts seconds even on a fast, idle machine. With
+# the default event method only the budget and the tolerance count (steps_per_period is for the
+# stepping methods): 480 tiny-study points of it are ~10 s of serial kernel time. A test that
+# must hold the cluster for longer uses Euler points (MEDIUM_SOLVER in api/test_jobs.py).
 SLOW_SOLVER = {"steps_per_period": 2048, "max_periods": 100, "periodicity_tol": 1e-13}
 
 
