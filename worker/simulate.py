@@ -302,12 +302,17 @@ def kernels_cached(method: str) -> bool | None:
 _warm: set[str] = set()  # methods whose kernels are compiled or loaded in this process
 
 
+def _warm_mark(method: str) -> str:
+    """The name of the cache's mark of a finished warm-up of ``method``."""
+    return f"warm-{method}"
+
+
 def cache_ready(method: str | None = None) -> bool:
     """Whether a :func:`warm_up` of ``method`` (default: every method) finished with these
     sources, so numba's on-disk cache holds everything a point compiles: a process starting
     workers need not load anything itself, and its workers load it as they start."""
     return all(
-        marked_done(f"warm-{m}") and kernels_cached(m)
+        marked_done(_warm_mark(m)) and kernels_cached(m)
         for m in (METHODS if method is None else (method,))
     )
 
@@ -340,7 +345,7 @@ def warm_up(method: str | None = None, *, quiet: bool = False) -> None:
         # a point that impacts and a point that is linear at once: every kernel path compiles
         simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
         compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
-        mark_done(f"warm-{m}")
+        mark_done(_warm_mark(m))
         if cached is False and not quiet:
             print(f"impactcell: {m!r} kernels ready in {time.perf_counter() - t0:.0f} s",
                   file=sys.stderr, flush=True)  # fmt: skip

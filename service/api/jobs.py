@@ -312,8 +312,9 @@ class JobManager:
 
     def _ensure_pool_locked(self, method: str) -> ChunkPool:
         if self._client is None:
-            # An embedded cluster's workers start while ``method``'s kernels are compiled or
-            # loaded here; they load them from numba's cache only after (``make_client``).
+            # An embedded cluster's workers load ``method``'s kernels from numba's cache as they
+            # start, or, on a cache without them, after this process compiled them
+            # (``make_client``).
             self._client, self._cluster = make_client(
                 self.settings.scheduler, self.settings.workers, method=method
             )

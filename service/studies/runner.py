@@ -21,11 +21,12 @@ service runs all its running studies through one pool; ``run_study`` runs one). 
 running tasks: each task polls its study's ``distributed.Event`` between points and inside each
 point, and every point has a wall-time and step budget (``worker.simulate.PointLimits``).
 
-Workers never compile the same kernel twice: while an embedded cluster's worker processes start,
-and before they are asked to load any kernel, this process compiles the method's numba kernels,
-or loads them from numba's on-disk cache, so the worker processes load that cache instead of
-each compiling the same kernels in parallel. A task is ``service.studies.tasks.chunk_task``: a
-worker imports only the simulator to run it.
+Workers never compile the same kernel twice: when numba's on-disk cache lacks the method's
+kernels, this process compiles them while an embedded cluster's worker processes start, and
+before they are asked to load any kernel, so the worker processes load that cache instead of
+each compiling the same kernels in parallel; when the cache has them, each worker loads them as
+it starts and this process loads none (:func:`make_client`). A task is
+``service.studies.tasks.chunk_task``: a worker imports only the simulator to run it.
 """
 
 from __future__ import annotations

@@ -306,13 +306,12 @@ finally:
 
 @pytest.mark.slow  # real worker processes
 def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none() -> None:
-    root = Path(__file__).resolve().parents[3]
     env = {k: v for k, v in os.environ.items() if k != "IMPACTCELL_SCHEDULER"}
     fill = "from worker import simulate; simulate.fill_cache('event')"
-    subprocess.run([sys.executable, "-c", fill], cwd=root, env=env, check=True, timeout=600)
+    subprocess.run([sys.executable, "-c", fill], cwd=ROOT, env=env, check=True, timeout=600)
     script = [sys.executable, "-c", _WORKERS_LOAD_AT_START]
     out = subprocess.run(
-        script, cwd=root, env=env, capture_output=True, text=True, check=True, timeout=300
+        script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
     parent, workers = json.loads(out.strip().splitlines()[-1])
     assert parent == []  # nothing compiled or loaded in the process that only hands out points
