@@ -9,6 +9,7 @@ import pytest
 
 from worker.model import CellParams, assemble, steady_state
 from worker.simulate import SolverSettings, simulate_point
+from worker.solvers import measure as ms
 from worker.solvers.engine import few_windows_factor, mser_stats, rre
 from worker.solvers.linear import linear_tail
 
@@ -113,6 +114,34 @@ def test_the_linear_proof_is_rigorous_about_what_lies_ahead():
         assert proven == (r.contact_steps == 0), gap
         claims.append(proven)
     assert True in claims and False in claims
+
+
+def test_impacts_that_end_while_the_quiet_signal_is_held_back_are_still_followed_by_a_proof():
+    # After a failed proof the engine holds the next quiet signal back a few periods. Impacts
+    # that end inside that hold must still be signalled at the first quiet period after it
+    # (before, only a quiet period right after an impacting one was, so such a run went on
+    # until the cheap bound alone held, ~15 periods later).
+    nx = 2
+    x = np.zeros(nx)
+    rows = np.zeros((1, ms.ROW))
+    samples = np.zeros((1, nx))
+    ring = np.zeros((ms.RING, nx))
+    kst = np.zeros(ms.KST_SIZE)
+    kst[ms.K_NEXT_QUIET] = 5.0
+    lin_L = np.zeros((0, nx), dtype=complex)
+
+    def close(period: int, impacts: float) -> int:
+        rows[0, ms.M_IMP1] = impacts
+        kst[ms.K_PERIOD] = period
+        return ms.period_end(x, nx, rows, samples, 0, ring, kst, lin_L, x, 0.0, 0.0,
+                             ms.CHECK_QUIET, 1e300, 1e-9)[0]  # fmt: skip
+
+    assert close(3, 2.0) == ms.END_NONE  # impacts
+    assert close(4, 0.0) == ms.END_NONE  # quiet, but held back
+    assert close(5, 0.0) == ms.END_QUIET  # the hold is over: the impacts are still news
+    assert close(6, 0.0) == ms.END_NONE  # signalled once; no impacts since
+    assert close(7, 1.0) == ms.END_NONE
+    assert close(8, 0.0) == ms.END_QUIET
 
 
 # --------------------------------------------------------------------------- periodic

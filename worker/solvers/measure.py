@@ -65,7 +65,7 @@ K_NEXT_TRY = 2  # first period at which a convergence candidate may be signalled
 K_CONTACT = 3  # contact episode in progress: 0 none, 1/2 at stop 1/2
 K_HIST = 4  # history rows written
 K_NEXT_QUIET = 5  # first period at which a quiet period may be signalled again
-K_IMPACTED = 6  # 1 if the previous period had impacts
+K_IMPACTED = 6  # 1 if a period had impacts since the last quiet signal (or the start)
 K_METHOD = 7  # first entry a method may use for its own state
 KST_SIZE = 16
 
@@ -77,7 +77,8 @@ END_DIVERGED = 2  # |x|∞ exceeded the divergence limit
 END_LINEAR = 3  # the linear tail test proved that no stop is ever reached again
 END_PERIODIC = 4  # the stroboscopic sequence repeats with period p
 END_CANDIDATE = 5  # converging geometrically to a p-periodic state: worth extrapolating
-END_QUIET = 8  # a period without impacts, ending off the stops, after one with impacts
+END_QUIET = 8  # a period without impacts, ending off the stops, after impacts since the last
+#                quiet signal
 END_CHATTER = 6  # event: more events in a period than the budget
 END_ILLCOND = 7  # event: a regime could not be propagated accurately
 
@@ -398,13 +399,17 @@ def period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp, lin_g
         if p > 0:
             return END_PERIODIC, p
     impacted = rows[k, M_IMP1] + rows[k, M_IMP2] > 0.0
-    was = kst[K_IMPACTED]
-    kst[K_IMPACTED] = 1.0 if impacted else 0.0
+    if impacted:
+        kst[K_IMPACTED] = 1.0
     if checks & CHECK_CANDIDATE and period >= kst[K_NEXT_TRY]:
         p = candidate(ring, nring, period, nx)
         if p > 0:
             return END_CANDIDATE, p
-    if (checks & CHECK_QUIET and was == 1.0 and not impacted and rows[k, M_REGIME] == 0.0
-            and period >= kst[K_NEXT_QUIET]):  # fmt: skip
+    # The flag outlives the engine's back-off: impacts that end while a quiet period may not be
+    # signalled are still followed by a proof at the first quiet period after it (a signal only
+    # at an impacting period's successor left those runs to the cheap bound, ~15 periods later).
+    if (checks & CHECK_QUIET and kst[K_IMPACTED] == 1.0 and not impacted
+            and rows[k, M_REGIME] == 0.0 and period >= kst[K_NEXT_QUIET]):  # fmt: skip
+        kst[K_IMPACTED] = 0.0
         return END_QUIET, 0
     return END_NONE, 0
