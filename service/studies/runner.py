@@ -145,8 +145,12 @@ def make_client(
     """
     from dask.distributed import Client, LocalCluster
 
+    # Never dask's default client: xarray would then take a lock on the scheduler for every
+    # NetCDF write of this process, and a results file written while the cluster shuts down
+    # (run_study collates meanwhile) failed with "ConnectionPool is closed". Every call here
+    # names its client.
     if scheduler:
-        return Client(scheduler, timeout=CONNECT_TIMEOUT), None
+        return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False), None
     _worker_environ()
     n = workers or os.cpu_count() or 1
     ready = simulate.cache_ready(method)
@@ -169,7 +173,7 @@ def make_client(
             raise
         cluster = starting.result()  # a cluster that cannot start raises here
     try:
-        return Client(cluster), cluster
+        return Client(cluster, set_as_default=False), cluster
     except BaseException:
         cluster.close()
         raise
@@ -429,6 +433,9 @@ class ChunkPool:
         self._events: dict[str, str] = {}  # run key → name of its cancel event
         self._tag = uuid.uuid4().hex[:8]  # a resumed run must not reuse keys of a cancelled one
         self._count = itertools.count()
+        # Set by every task's completion (distributed.wait would need dask's default client,
+        # which make_client's never is).
+        self._wake = threading.Event()
 
     def add(self, key: str, run: StudyRun) -> None:
         """Take a study's remaining chunks into the rotation."""
@@ -541,6 +548,7 @@ class ChunkPool:
                 # every other study's earlier chunks, so a new small study starts at once.
                 priority=-run.submitted,
             )
+            fut.add_done_callback(lambda _: self._wake.set())
             self._futures[fut] = (piece, compute)
             run.submitted += 1
         if piece.left == 0:
@@ -613,15 +621,15 @@ class ChunkPool:
     def step(self, timeout: float) -> list[str]:
         """Fill the window, wait up to ``timeout`` s, store what finished; keys of the runs
         that are now complete."""
-        from distributed import wait
-
         self._fill()
         if not self._futures:
             return [k for k, r in self.runs.items() if r.complete]
-        try:
-            done = wait(list(self._futures), timeout=timeout, return_when="FIRST_COMPLETED").done
-        except TimeoutError:  # distributed ≥ 2024 raises the builtin on timeout
-            done = set()
+        if not any(f.done() for f in self._futures):
+            self._wake.wait(timeout)
+        # A completion after this clear sets it again; one before is in the scan below (and
+        # the next step's check above).
+        self._wake.clear()
+        done = [f for f in self._futures if f.done()]
         for fut in done:
             if fut not in self._futures:
                 continue

@@ -298,7 +298,10 @@ assert simulate.cache_ready("event")
 client, cluster = make_client(None, 2, method="event")
 try:
     loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
-    print(json.dumps([sorted(simulate._warm), sorted(loaded.values())]))
+    from xarray.backends.locks import get_dask_scheduler
+
+    # what xarray's NetCDF writes in this process would lock on
+    print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler()]))
 finally:
     _close(client, cluster)
 """
@@ -313,9 +316,12 @@ def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads
     out = subprocess.run(
         script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
-    parent, workers = json.loads(out.strip().splitlines()[-1])
+    parent, workers, netcdf_lock = json.loads(out.strip().splitlines()[-1])
     assert parent == []  # nothing compiled or loaded in the process that only hands out points
     assert workers == [["event"], ["event"]]  # loaded before anyone asked (no warm_up yet)
+    # The client is not dask's default, so a NetCDF write (the results file, collated while the
+    # cluster shuts down) takes a lock in this process, not on the scheduler ("distributed").
+    assert netcdf_lock != "distributed"
 
 
 def test_a_cluster_that_cannot_start_is_an_error_in_the_caller(monkeypatch) -> None:
@@ -354,10 +360,14 @@ def test_a_worker_imports_only_the_simulator_to_run_a_chunk(tmp_path: Path) -> N
     pull in the runner's schema, datasets and store (~1.3 s per worker before its first point)."""
     sent: list[Any] = []
 
+    class Future:
+        def add_done_callback(self, fn: Any) -> None:
+            pass
+
     class Client:
-        def submit(self, fn: Any, *args: Any, **kw: Any) -> object:
+        def submit(self, fn: Any, *args: Any, **kw: Any) -> Future:
             sent.append(fn)
-            return object()
+            return Future()
 
     pool = runner.ChunkPool(Client(), window=1)
     pool.add("one", runner.make_run(_study(), tmp_path))
