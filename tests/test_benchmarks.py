@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -112,3 +113,45 @@ def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> 
     # all of the paper's time (200 ms) over the irregular and unsettled points' (50 ms)
     assert mod.ceiling(rows) == 4.0
     assert mod.ceiling(rows[:1]) == float("inf")
+
+
+def test_run_command_table_has_the_cpu_floor() -> None:
+    rc = _load("run_command")
+    rows = [
+        {"wall": 10.0, "self": 2.0, "children": 14.0, "kernels": 12.0},
+        {"wall": 12.0, "self": 4.0, "children": 16.0, "kernels": 13.0},
+    ]
+    lines = rc.table(rows, cores=2)
+    assert lines[2] == "| 1 | 10.00 | 2.00 | 14.00 | 12.00 | 8.00 | 2.00 |"
+    assert lines[3] == "| 2 | 12.00 | 4.00 | 16.00 | 13.00 | 10.00 | 2.00 |"
+    assert lines[4] == "| median | 11.00 | 3.00 | 15.00 | 12.50 | 9.00 | 2.00 |"
+    with pytest.raises(SystemExit) as exc:  # argparse's error, before anything runs
+        rc.main(["--runs", "0"])
+    assert exc.value.code == 2
+
+
+@pytest.mark.slow  # runs the real command: an embedded cluster
+def test_run_command_runs_the_command_and_accounts_for_its_processes(tmp_path: Path) -> None:
+    rc = _load("run_command")
+    study = tmp_path / "tiny.yaml"
+    study.write_text(
+        "name: tiny\n"
+        "grid:\n"
+        "  gamma_r: [0.5, 1.5, 2.5, 3.5]\n"
+        "  gap: 0.3\n"
+        "  theta: 0.3\n"
+        "  sigma: 0.05\n"
+        "  gamma_s: 1.0\n"
+    )
+    r = rc.run_once(str(study), tmp_path / "data")
+    assert r["points"] == 4 and r["workers"] >= 1
+    # the command's own process imports and collates; its workers import and compute
+    assert r["self"] > 0.5 and r["children"] > 0.5
+    assert 0.0 < r["kernels"] < r["children"]
+    # CPU time cannot exceed the cores' time: the floor is a floor (nothing counted twice)
+    assert (r["self"] + r["children"]) / (os.cpu_count() or 1) <= r["wall"] * 1.02
+    out = tmp_path / "out"
+    assert rc.main([str(study), "--runs", "1", "--out", str(out)]) == 0
+    md = (out / "run_command.md").read_text()
+    assert "`impactcell run " in md and "4 points" in md
+    assert md.count("\n| 1 |") == 1 and "| median |" in md

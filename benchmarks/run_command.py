@@ -1,0 +1,148 @@
+"""Where the time of ``impactcell run STUDY`` goes: wall time, and the CPU of the command's own
+process and of its worker processes.
+
+    python benchmarks/run_command.py [STUDY] [--runs 3] [--out DIR]
+
+Runs the command (``python -m service.cli run STUDY --json --no-progress``) ``--runs`` times,
+each on a fresh data directory (nothing reused), the way a user does, and reports per run:
+
+* wall: from starting the command to its exit (interpreter start and imports included);
+* command CPU: the command's own process (``getrusage(RUSAGE_SELF)`` at its exit): imports, the
+  embedded cluster's scheduler and nannies, storing chunks, collation;
+* workers CPU: its worker processes (``RUSAGE_CHILDREN``: the cluster reaps them before the
+  command exits), their kernels included;
+* kernels: the points' ``wall_s`` summed (the numba time loops only);
+* CPU floor: (command + workers CPU) / cores. With every core busy the run cannot be shorter;
+  a wall time near it says a shorter run needs less work, not better overlap.
+
+Default STUDY: ``studies/paper-fig5-gaps.yaml`` (the issue's 15 s target). Writes
+``run_command.md`` to ``--out`` (default ``benchmarks/results``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_STUDY = "studies/paper-fig5-gaps.yaml"
+
+# Run inside the command's process: the command itself (service.cli.entry, with its quick
+# exit), then, from an atexit handler (entry runs them after main returns and the cluster is
+# closed), the CPU of the process and of its reaped children on stderr.
+_WRAPPER = r"""
+import atexit, json, resource, sys
+
+
+def _report():
+    s = resource.getrusage(resource.RUSAGE_SELF)
+    c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    sys.stderr.write("RUSAGE " + json.dumps({
+        "self": s.ru_utime + s.ru_stime, "children": c.ru_utime + c.ru_stime}) + "\n")
+    sys.stderr.flush()
+
+
+atexit.register(_report)
+sys.argv = ["impactcell", "run", *sys.argv[1:]]
+from service.cli import entry
+
+entry()
+"""
+
+
+def run_once(study: str, data_dir: Path) -> dict[str, float]:
+    """One ``impactcell run`` on ``data_dir``: its figures (see the module docstring)."""
+    cmd = [sys.executable, "-c", _WRAPPER, study, "--out", str(data_dir), "--json",
+           "--no-progress"]  # fmt: skip
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=3600)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"impactcell run {study} failed ({done.returncode}):\n{done.stderr}")
+    usage = next(
+        json.loads(ln[len("RUSAGE ") :])
+        for ln in reversed(done.stderr.splitlines())
+        if ln.startswith("RUSAGE ")
+    )
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    if summary["computed"] != summary["points"]:
+        raise SystemExit(f"expected every point computed, got {summary['computed']} of "
+                         f"{summary['points']} (a data directory that was not fresh?)")  # fmt: skip
+    return {
+        "points": summary["points"],
+        "workers": summary["workers"],
+        "wall": wall,
+        "self": usage["self"],
+        "children": usage["children"],
+        "kernels": summary["kernel_s"],
+    }
+
+
+def table(rows: list[dict[str, float]], cores: int) -> list[str]:
+    """The markdown rows: one per run, then the medians."""
+    out = [
+        "| run | wall s | command CPU s | workers CPU s | kernels s | CPU floor s "
+        "| wall − floor s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def line(name: str, r: dict[str, float]) -> str:
+        floor = (r["self"] + r["children"]) / cores
+        return (f"| {name} | {r['wall']:.2f} | {r['self']:.2f} | {r['children']:.2f} | "
+                f"{r['kernels']:.2f} | {floor:.2f} | {r['wall'] - floor:.2f} |")  # fmt: skip
+
+    for i, r in enumerate(rows, 1):
+        out.append(line(str(i), r))
+    med = {
+        k: statistics.median(r[k] for r in rows) for k in ("wall", "self", "children", "kernels")
+    }
+    out.append(line("median", med))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark and print/save the table."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("study", nargs="?", default=DEFAULT_STUDY, help="a study file")
+    ap.add_argument("--runs", type=int, default=3, help="runs (default 3)")
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    args = ap.parse_args(argv)
+    if args.runs < 1:
+        ap.error(f"--runs must be at least 1, got {args.runs}")
+    cores = os.cpu_count() or 1
+    rows = []
+    for _ in range(args.runs):
+        with tempfile.TemporaryDirectory(prefix="impactcell-run-") as tmp:
+            rows.append(run_once(args.study, Path(tmp)))
+    first = rows[0]
+    lines = [
+        f"`impactcell run {args.study}` end to end: {first['points']:,} points, "
+        f"{first['workers']} worker processes on {cores} cores "
+        f"({platform.machine()}, Python {platform.python_version()}); "
+        f"each run on a fresh data directory.",
+        "",
+        *table(rows, cores),
+        "",
+        "Command CPU: the `impactcell` process (imports, scheduler and nannies, chunk storage, "
+        "collation); workers CPU: its worker processes; kernels: the points' `wall_s` summed; "
+        "CPU floor: (command + workers CPU) / cores.",
+        "",
+        f"Generated by `python benchmarks/run_command.py {args.study} --runs {args.runs}`.",
+    ]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "run_command.md").write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
