@@ -3,8 +3,10 @@ process and of its worker processes.
 
     python benchmarks/run_command.py [STUDY] [--runs 3] [--out DIR]
 
-Runs the command (``python -m service.cli run STUDY --json --no-progress``) ``--runs`` times,
-each on a fresh data directory (nothing reused), the way a user does, and reports per run:
+Runs the command (``impactcell run STUDY --json --no-progress``, through a wrapper that reads
+``getrusage`` as it exits) ``--runs`` times, each on a fresh data directory and its own
+catalogue (nothing reused) and on the embedded cluster (``IMPACTCELL_SCHEDULER`` and
+``IMPACTCELL_DATABASE_URL`` are not passed on), and reports per run:
 
 * wall: from starting the command to its exit (interpreter start and imports included);
 * command CPU: the command's own process (``getrusage(RUSAGE_SELF)`` at its exit): imports, the
@@ -34,6 +36,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_STUDY = "studies/paper-fig5-gaps.yaml"
+_NOT_PASSED = ("IMPACTCELL_SCHEDULER", "IMPACTCELL_DATABASE_URL")
 
 # Run inside the command's process: the command itself (service.cli.entry, with its quick
 # exit), then, from an atexit handler (entry runs them after main returns and the cluster is
@@ -62,8 +65,10 @@ def run_once(study: str, data_dir: Path) -> dict[str, float]:
     """One ``impactcell run`` on ``data_dir``: its figures (see the module docstring)."""
     cmd = [sys.executable, "-c", _WRAPPER, study, "--out", str(data_dir), "--json",
            "--no-progress"]  # fmt: skip
+    # the embedded cluster (its workers are this command's children) and a fresh catalogue
+    env = {k: v for k, v in os.environ.items() if k not in _NOT_PASSED}
     t0 = time.perf_counter()
-    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=3600)
+    done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=3600)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"impactcell run {study} failed ({done.returncode}):\n{done.stderr}")
