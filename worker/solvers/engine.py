@@ -52,7 +52,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from scipy.special import stdtrit
 
 from worker.model import SteadyState, System
 from worker.numba_cache import on_disk
@@ -196,6 +195,10 @@ def few_windows_factor(m: int) -> float:
     windows (m = 8: 1.51; m = 20: 1.15; m = 100: 1.03)."""
     if m < 2:
         return 1.0
+    # Imported here: scipy costs ~0.4 s of CPU to import, and only an irregular response's
+    # statistics need it (not the process that hands out points, nor most points).
+    from scipy.special import stdtrit
+
     return max(1.0, float(stdtrit(m - 1, 0.99865)) / 3.0)
 
 

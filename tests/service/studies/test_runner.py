@@ -385,6 +385,22 @@ def test_a_worker_imports_only_the_simulator_to_run_a_chunk(tmp_path: Path) -> N
     assert out.stdout.strip() == "[]"
 
 
+def test_the_process_that_hands_out_points_imports_no_scipy_solvers() -> None:
+    """scipy's linear algebra and special functions cost ~0.4 s of CPU to import, on the
+    command's critical path before its cluster starts; only a point's set-up (``exponential``)
+    and an irregular point's statistics need them, in the workers."""
+    code = (
+        "import sys, service.cli, service.studies.runner, service.api.points, "
+        "service.studies.tasks, worker.simulate; "
+        "print(sorted(m for m in ('scipy.linalg', 'scipy.special') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
 def _chunk_files(folder: Path) -> list[Path]:
     return list(folder.glob("*.npz")) if folder.is_dir() else []
 
