@@ -373,32 +373,27 @@ def test_a_worker_imports_only_the_simulator_to_run_a_chunk(tmp_path: Path) -> N
     pool.add("one", runner.make_run(_study(), tmp_path))
     pool._fill()
     assert [f.__module__ for f in sent] == ["service.studies.tasks"]
-    code = (
-        "import sys, service.studies.tasks; "
-        "print(sorted(m for m in ('xarray', 'pandas', 'scipy.sparse', 'pydantic', 'sqlalchemy', "
-        "'service.studies.runner') if m in sys.modules))"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
-    )
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "[]"
+    heavy = ("xarray", "pandas", "scipy.sparse", "pydantic", "sqlalchemy", "service.studies.runner")
+    assert _loaded_after("service.studies.tasks", heavy) == []
 
 
 def test_the_process_that_hands_out_points_imports_no_scipy_solvers() -> None:
     """scipy's linear algebra and special functions cost ~0.4 s of CPU to import, on the
     command's critical path before its cluster starts; only a point's set-up (``exponential``)
     and an irregular point's statistics need them, in the workers."""
-    code = (
-        "import sys, service.cli, service.studies.runner, service.api.points, "
-        "service.studies.tasks, worker.simulate; "
-        "print(sorted(m for m in ('scipy.linalg', 'scipy.special') if m in sys.modules))"
-    )
+    command = "service.cli, service.studies.runner, service.api.points, worker.simulate"
+    assert _loaded_after(command, ("scipy.linalg", "scipy.special")) == []
+
+
+def _loaded_after(imports: str, modules: tuple[str, ...]) -> list[str]:
+    """Which of ``modules`` a fresh interpreter holds after ``import <imports>``."""
+    code = f"import sys, {imports}; print(json.dumps([m for m in {modules!r} if m in sys.modules]))"
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
-    )
+        [sys.executable, "-c", "import json; " + code],
+        capture_output=True, text=True, timeout=120, cwd=ROOT,
+    )  # fmt: skip
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "[]"
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def _chunk_files(folder: Path) -> list[Path]:
