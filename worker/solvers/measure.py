@@ -77,8 +77,7 @@ END_DIVERGED = 2  # |x|∞ exceeded the divergence limit
 END_LINEAR = 3  # the linear tail test proved that no stop is ever reached again
 END_PERIODIC = 4  # the stroboscopic sequence repeats with period p
 END_CANDIDATE = 5  # converging geometrically to a p-periodic state: worth extrapolating
-END_QUIET = 8  # a period without impacts, ending off the stops, after impacts since the last
-#                quiet signal
+END_QUIET = 8  # an impact-free period ending off the stops, after impacts since the last one
 END_CHATTER = 6  # event: more events in a period than the budget
 END_ILLCOND = 7  # event: a regime could not be propagated accurately
 

@@ -387,11 +387,11 @@ def test_the_process_that_hands_out_points_imports_no_scipy_solvers() -> None:
 
 def _loaded_after(imports: str, modules: tuple[str, ...]) -> list[str]:
     """Which of ``modules`` a fresh interpreter holds after ``import <imports>``."""
-    code = f"import sys, {imports}; print(json.dumps([m for m in {modules!r} if m in sys.modules]))"
+    held = f"[m for m in {modules!r} if m in sys.modules]"
+    code = f"import json, sys, {imports}; print(json.dumps({held}))"
     out = subprocess.run(
-        [sys.executable, "-c", "import json; " + code],
-        capture_output=True, text=True, timeout=120, cwd=ROOT,
-    )  # fmt: skip
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
+    )
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
