@@ -13,6 +13,7 @@ from fastapi.testclient import TestClient
 from service.api.app import create_app
 from service.api.settings import Settings
 from service.studies.chunks import StudyStore
+from service.studies.runner import DEFAULT_CHUNK_SIZE
 from service.studies.schema import parse_study
 
 DEF = {
@@ -25,7 +26,7 @@ DEF = {
         "gamma_s": 1.0,
     },
 }
-CHUNK = int(sys.argv[1]) if len(sys.argv) > 1 else 32  # the runner's DEFAULT_CHUNK_SIZE
+CHUNK = int(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_CHUNK_SIZE
 
 
 def record(i: int) -> dict:

@@ -11,7 +11,8 @@ Two measurements:
    has its own key and parameters). It times
 
    * *store*: what the runner does when a chunk finishes (``StudyRun.finished``: the points'
-     rows and the study's links, one transaction per chunk of 32 points), for the whole study;
+     rows and the study's links, one transaction per chunk of the runner's ``DEFAULT_CHUNK_SIZE``
+     points), for the whole study;
    * *assemble*: a renamed copy of the study taken whole from the store (``StudyRun``: keys,
      lookups, the chunk files) and collated into its NetCDF file (``collate``);
    * *query*: ``GET /points``' query for θ = …, gap = …, γ_r in a range (a selective question:

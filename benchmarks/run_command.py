@@ -1,7 +1,7 @@
 """Where the time of ``impactcell run STUDY`` goes: wall time, and the CPU of the command's own
 process and of its worker processes.
 
-    python benchmarks/run_command.py [STUDY] [--runs 3] [--out DIR]
+    python benchmarks/run_command.py [STUDY] [--runs 3] [--chunk-size N] [--out DIR]
 
 Runs the command (``impactcell run STUDY --json --no-progress``, through a wrapper that reads
 ``getrusage`` as it exits) ``--runs`` times, each on a fresh data directory and its own
@@ -13,12 +13,20 @@ catalogue (nothing reused) and on the embedded cluster (``IMPACTCELL_SCHEDULER``
   embedded cluster's scheduler and nannies, storing chunks, collation;
 * workers CPU: its worker processes (``RUSAGE_CHILDREN``: the cluster reaps them before the
   command exits), their kernels included;
-* kernels: the points' ``wall_s`` summed (the numba time loops only);
+* of it, points: the CPU of the workers' task threads, the threads that run the chunk tasks
+  (points, kernels and all; the rest is each worker's imports and its event loop). Read from
+  ``/proc`` every 0.1 s while the command runs (Linux; a worker's task thread is the one,
+  other than its main thread, that used the most CPU; a thread's last 0.1 s is missed, and the
+  reading costs the command's process well under 1 % of a core); ``–`` without ``/proc``;
+* kernels: the points' ``wall_s`` summed (the numba time loops only). Wall time: a kernel
+  that waits for a core (two workers and the command's process on two cores) counts here,
+  not in the CPU figures, so this can exceed the points' CPU;
 * CPU floor: (command + workers CPU) / cores. With every core busy the run cannot be shorter;
   a wall time near it says a shorter run needs less work, not better overlap.
 
-Default STUDY: ``studies/paper-fig5-gaps.yaml`` (the issue's 15 s target). Writes
-``run_command.md`` to ``--out`` (default ``benchmarks/results``).
+Default STUDY: ``studies/paper-fig5-gaps.yaml`` (the issue's 15 s target). ``--chunk-size`` is
+passed to the command (default: the runner's). Writes ``run_command.md`` to ``--out`` (default
+``benchmarks/results``).
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_STUDY = "studies/paper-fig5-gaps.yaml"
@@ -42,18 +51,49 @@ _NOT_PASSED = ("IMPACTCELL_SCHEDULER", "IMPACTCELL_DATABASE_URL")
 # exit), then, from an atexit handler (entry runs them after main returns and the cluster is
 # closed), the CPU of the process and of its reaped children on stderr.
 _WRAPPER = r"""
-import atexit, json, resource, sys
+import atexit, json, os, resource, sys, threading, time
+
+_threads = {}  # (worker pid, thread id) -> the most CPU seen (s)
+_TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _sample():
+    me = os.getpid()
+    while True:
+        kids = set()
+        try:
+            for tid in os.listdir(f"/proc/{me}/task"):
+                with open(f"/proc/{me}/task/{tid}/children") as fh:
+                    kids.update(fh.read().split())
+        except OSError:  # no /proc (or a thread that just ended): nothing to split this time
+            pass
+        for pid in kids:
+            try:
+                for tid in os.listdir(f"/proc/{pid}/task"):
+                    with open(f"/proc/{pid}/task/{tid}/stat") as fh:
+                        f = fh.read().rsplit(")", 1)[1].split()
+                    cpu = (int(f[11]) + int(f[12])) / _TICK  # utime + stime
+                    _threads[pid, tid] = max(_threads.get((pid, tid), 0.0), cpu)
+            except OSError:  # the process or one of its threads just ended
+                pass
+        time.sleep(0.1)  # a thread's last 0.1 s before its process ends is not seen
 
 
 def _report():
     s = resource.getrusage(resource.RUSAGE_SELF)
     c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    tasks = {}
+    for (pid, tid), cpu in list(_threads.items()):
+        if tid != pid:
+            tasks[pid] = max(tasks.get(pid, 0.0), cpu)
     sys.stderr.write("RUSAGE " + json.dumps({
-        "self": s.ru_utime + s.ru_stime, "children": c.ru_utime + c.ru_stime}) + "\n")
+        "self": s.ru_utime + s.ru_stime, "children": c.ru_utime + c.ru_stime,
+        "points": sum(tasks.values()) if tasks else None}) + "\n")
     sys.stderr.flush()
 
 
 atexit.register(_report)
+threading.Thread(target=_sample, daemon=True).start()
 sys.argv = ["impactcell", "run", *sys.argv[1:]]
 from service.cli import entry
 
@@ -61,10 +101,12 @@ entry()
 """
 
 
-def run_once(study: str, data_dir: Path) -> dict[str, float]:
+def run_once(study: str, data_dir: Path, chunk_size: int | None = None) -> dict[str, Any]:
     """One ``impactcell run`` on ``data_dir``: its figures (see the module docstring)."""
     cmd = [sys.executable, "-c", _WRAPPER, study, "--out", str(data_dir), "--json",
            "--no-progress"]  # fmt: skip
+    if chunk_size is not None:
+        cmd += ["--chunk-size", str(chunk_size)]
     # the embedded cluster (its workers are this command's children) and a fresh catalogue
     env = {k: v for k, v in os.environ.items() if k not in _NOT_PASSED}
     t0 = time.perf_counter()
@@ -87,28 +129,32 @@ def run_once(study: str, data_dir: Path) -> dict[str, float]:
         "wall": wall,
         "self": usage["self"],
         "children": usage["children"],
+        "points_cpu": usage["points"],
         "kernels": summary["kernel_s"],
     }
 
 
-def table(rows: list[dict[str, float]], cores: int) -> list[str]:
+def table(rows: list[dict[str, Any]], cores: int) -> list[str]:
     """The markdown rows: one per run, then the medians."""
     out = [
-        "| run | wall s | command CPU s | workers CPU s | kernels s | CPU floor s "
-        "| wall − floor s |",
-        "|---|---|---|---|---|---|---|",
+        "| run | wall s | command CPU s | workers CPU s | of it points s | kernels s "
+        "| CPU floor s | wall − floor s |",
+        "|---|---|---|---|---|---|---|---|",
     ]
 
-    def line(name: str, r: dict[str, float]) -> str:
+    def line(name: str, r: dict[str, Any]) -> str:
         floor = (r["self"] + r["children"]) / cores
-        return (f"| {name} | {r['wall']:.2f} | {r['self']:.2f} | {r['children']:.2f} | "
+        pts = "–" if r["points_cpu"] is None else f"{r['points_cpu']:.2f}"
+        return (f"| {name} | {r['wall']:.2f} | {r['self']:.2f} | {r['children']:.2f} | {pts} | "
                 f"{r['kernels']:.2f} | {floor:.2f} | {r['wall'] - floor:.2f} |")  # fmt: skip
 
     for i, r in enumerate(rows, 1):
         out.append(line(str(i), r))
-    med = {
+    med: dict[str, Any] = {
         k: statistics.median(r[k] for r in rows) for k in ("wall", "self", "children", "kernels")
     }
+    known = [r["points_cpu"] for r in rows if r["points_cpu"] is not None]
+    med["points_cpu"] = statistics.median(known) if len(known) == len(rows) else None
     out.append(line("median", med))
     return out
 
@@ -118,15 +164,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("study", nargs="?", default=DEFAULT_STUDY, help="a study file")
     ap.add_argument("--runs", type=int, default=3, help="runs (default 3)")
+    ap.add_argument("--chunk-size", type=int, default=None,
+                    help="points per task, passed on (default: the runner's)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error(f"--runs must be at least 1, got {args.runs}")
+    if args.chunk_size is not None and args.chunk_size < 1:
+        ap.error(f"--chunk-size must be at least 1, got {args.chunk_size}")
     cores = os.cpu_count() or 1
     rows = []
     for _ in range(args.runs):
         with tempfile.TemporaryDirectory(prefix="impactcell-run-") as tmp:
-            rows.append(run_once(args.study, Path(tmp)))
+            rows.append(run_once(args.study, Path(tmp), args.chunk_size))
     first = rows[0]
     lines = [
         f"`impactcell run {args.study}` end to end: {first['points']:,} points, "
@@ -137,10 +187,14 @@ def main(argv: list[str] | None = None) -> int:
         *table(rows, cores),
         "",
         "Command CPU: the `impactcell` process (imports, scheduler and nannies, chunk storage, "
-        "collation); workers CPU: its worker processes; kernels: the points' `wall_s` summed; "
-        "CPU floor: (command + workers CPU) / cores.",
+        "collation); workers CPU: its worker processes; of it points: their task threads "
+        "(the points; the rest is the workers' imports and event loops); kernels: the points' "
+        "`wall_s` summed (wall time: it includes waiting for a core); CPU floor: (command + "
+        "workers CPU) / cores.",
         "",
-        f"Generated by `python benchmarks/run_command.py {args.study} --runs {args.runs}`.",
+        f"Generated by `python benchmarks/run_command.py {args.study} --runs {args.runs}"
+        + (f" --chunk-size {args.chunk_size}" if args.chunk_size is not None else "")
+        + "`.",
     ]
     text = "\n".join(lines) + "\n"
     print(text)

@@ -118,15 +118,22 @@ def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> 
 def test_run_command_table_has_the_cpu_floor() -> None:
     rc = _load("run_command")
     rows = [
-        {"wall": 10.0, "self": 2.0, "children": 14.0, "kernels": 12.0},
-        {"wall": 12.0, "self": 4.0, "children": 16.0, "kernels": 13.0},
+        {"wall": 10.0, "self": 2.0, "children": 14.0, "kernels": 12.0, "points_cpu": 11.0},
+        {"wall": 12.0, "self": 4.0, "children": 16.0, "kernels": 13.0, "points_cpu": 12.0},
     ]
     lines = rc.table(rows, cores=2)
-    assert lines[2] == "| 1 | 10.00 | 2.00 | 14.00 | 12.00 | 8.00 | 2.00 |"
-    assert lines[3] == "| 2 | 12.00 | 4.00 | 16.00 | 13.00 | 10.00 | 2.00 |"
-    assert lines[4] == "| median | 11.00 | 3.00 | 15.00 | 12.50 | 9.00 | 2.00 |"
+    assert lines[2] == "| 1 | 10.00 | 2.00 | 14.00 | 11.00 | 12.00 | 8.00 | 2.00 |"
+    assert lines[3] == "| 2 | 12.00 | 4.00 | 16.00 | 12.00 | 13.00 | 10.00 | 2.00 |"
+    assert lines[4] == "| median | 11.00 | 3.00 | 15.00 | 11.50 | 12.50 | 9.00 | 2.00 |"
+    # without /proc a run has no split: "–", and the median is not made up from the others
+    rows[1]["points_cpu"] = None
+    lines = rc.table(rows, cores=2)
+    assert lines[3].split(" | ")[4] == "–" and lines[4].split(" | ")[4] == "–"
     with pytest.raises(SystemExit) as exc:  # argparse's error, before anything runs
         rc.main(["--runs", "0"])
+    assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:
+        rc.main(["--chunk-size", "0"])
     assert exc.value.code == 2
 
 
@@ -136,6 +143,7 @@ def test_run_command_runs_the_command_and_accounts_for_its_processes(tmp_path: P
     study = tmp_path / "tiny.yaml"
     study.write_text(
         "name: tiny\n"
+        "solver: {early_stop: false, max_periods: 3000}\n"  # ~0.1 s a point: CPU to see
         "grid:\n"
         "  gamma_r: [0.5, 1.5, 2.5, 3.5]\n"
         "  gap: 0.3\n"
@@ -148,6 +156,9 @@ def test_run_command_runs_the_command_and_accounts_for_its_processes(tmp_path: P
     # the command's own process imports and collates; its workers import and compute
     assert r["self"] > 0.5 and r["children"] > 0.5
     assert 0.0 < r["kernels"] < r["children"]
+    # the points ran in the workers' task threads: part of the workers' CPU, not all of it
+    # (their imports and event loops are the rest)
+    assert 0.0 < r["points_cpu"] < r["children"]
     # CPU time cannot exceed the cores' time: the floor is a floor (nothing counted twice)
     assert (r["self"] + r["children"]) / (os.cpu_count() or 1) <= r["wall"] * 1.02
     out = tmp_path / "out"
@@ -155,3 +166,13 @@ def test_run_command_runs_the_command_and_accounts_for_its_processes(tmp_path: P
     md = (out / "run_command.md").read_text()
     assert "`impactcell run " in md and "4 points" in md
     assert md.count("\n| 1 |") == 1 and "| median |" in md
+
+
+def test_task_overhead_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
+    mod = _load("task_overhead")
+    for argv, said in ((["--tasks", "0"], "--tasks must be at least 1, got 0"),
+                       (["--sizes", "32,x"], "--sizes must be comma-separated integers"),
+                       (["--sizes", "0,96"], "--sizes must all be at least 1")):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:  # argparse's error, before any cluster starts
+            mod.main(argv)
+        assert exc.value.code == 2 and said in capsys.readouterr().err

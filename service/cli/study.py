@@ -177,7 +177,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--chunk-size",
         type=positive_int,
         default=None,
-        help="points per dask task (default 32, less for small studies)",
+        help="points per dask task (default 96, less for small studies)",
     )
     p.add_argument(
         "--max-points",

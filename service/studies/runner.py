@@ -79,7 +79,11 @@ __all__ = [
     "warm_up",
 ]
 
-DEFAULT_CHUNK_SIZE = 32  # points per task: ~0.1–0.6 s at 2–20 ms a point, ≫ dask's ~1 ms
+# Points per task. Whatever its size, a task costs ~15 ms of CPU in dask (half in the command's
+# process, half in the worker) and ~5.5 ms to store its chunk (benchmarks/task_overhead.py). At
+# Figure 5's ~4 ms a point, 32 points a task added ~15 %; 96 (61 tasks instead of 182) made its
+# run ~3 s shorter (benchmarks/run_command.py --chunk-size 32, 10 interleaved pairs); 192 no more.
+DEFAULT_CHUNK_SIZE = 96
 TASK_RETRIES = 2
 CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, not minutes
 # Single-threaded BLAS in worker processes: dask's ``distributed.nanny.pre-spawn-environ``

@@ -112,8 +112,8 @@ class _Partial:
 class _PartialCache:
     """Partial datasets of a few studies, built incrementally from their chunk files.
 
-    A request reads only the chunk files that appeared since the previous one (one file of
-    32 points instead of every file of the study); the dataset is rebuilt only when the set of
+    A request reads only the chunk files that appeared since the previous one (one file of a
+    chunk's points instead of every file of the study); the dataset is rebuilt only when the set of
     files changed, and its NetCDF file is written once per set and then served as a file.
     """
 

@@ -87,3 +87,15 @@ def test_run_a_shipped_study_by_name_from_any_folder(
     summary = json.loads(capsys.readouterr().out)
     assert summary["points"] == 30 and Path(summary["path"]).is_file()
     assert Path(summary["path"]).is_relative_to(out)
+
+
+def test_run_help_gives_the_runners_chunk_size(capsys: pytest.CaptureFixture[str]) -> None:
+    # The help is written out (the command's modules stay light to import): it must say what
+    # the runner does.
+    from service.studies.runner import DEFAULT_CHUNK_SIZE
+
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--help"])
+    assert exc.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"points per dask task (default {DEFAULT_CHUNK_SIZE}, less for small studies)" in text

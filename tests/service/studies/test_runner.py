@@ -28,7 +28,12 @@ from service.cli import main
 from service.studies import runner
 from service.studies.chunks import StudyStore
 from service.studies.dataset import open_results
-from service.studies.runner import make_client, run_study
+from service.studies.runner import (
+    DEFAULT_CHUNK_SIZE,
+    default_chunk_size,
+    make_client,
+    run_study,
+)
 from service.studies.schema import load_study, parse_study
 from service.studies.variables import outcome_names
 from tests.service.helpers import comparable
@@ -37,6 +42,14 @@ from worker.solvers.settings import OUTCOMES
 
 ROOT = Path(__file__).resolve().parents[3]
 SOLVER = {"steps_per_period": 512, "max_periods": 200, "periodicity_tol": 1e-6, "window": 10}
+
+
+def test_default_chunks_are_large_but_every_worker_gets_several() -> None:
+    # Figure 5 on two workers: whole chunks (a task's fixed cost is ~20 ms of CPU)
+    assert default_chunk_size(5820, 2) == DEFAULT_CHUNK_SIZE == 96
+    # a small study: at least four tasks per worker, so none waits idle while one computes
+    assert default_chunk_size(100, 2) == 13
+    assert default_chunk_size(3, 8) == 1
 
 
 def _study(name: str = "runner", **extra: Any) -> Any:
