@@ -34,7 +34,7 @@ from benchmarks.point_engine import write_results  # noqa: E402
 from service.api.catalogue import Catalogue  # noqa: E402
 from service.api.points import SqlPointStore  # noqa: E402
 from service.studies.runner import StudyRun, make_client  # noqa: E402
-from service.studies.schema import load_study  # noqa: E402
+from service.studies.schema import Study, load_study  # noqa: E402
 from service.studies.tasks import chunk_task  # noqa: E402
 from worker.simulate import simulate_chunk  # noqa: E402
 
@@ -81,9 +81,9 @@ def dask_cost(tasks: int, workers: int) -> dict[str, float]:
     return {"own_ms": 1e3 * own / tasks, "workers_ms": 1e3 * (w1 - w0) / tasks, "wall_s": wall}
 
 
-def store_cost(sizes: list[int], chunks: int, tmp: Path) -> list[dict[str, float]]:
-    """CPU and wall (ms) per ``StudyRun.finished`` call, for chunks of each size."""
-    study = load_study(ROOT / "studies" / "paper-fig5-gaps.yaml")
+def store_cost(study: Study, sizes: list[int], chunks: int, tmp: Path) -> list[dict[str, float]]:
+    """CPU and wall (ms) per ``StudyRun.finished`` call, for chunks of each size (at most the
+    study's points)."""
     records = simulate_chunk(study.points(0, max(sizes)), study.solver.settings().__dict__, {})
     out = []
     for size in sizes:
@@ -121,11 +121,14 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("tasks", "workers", "chunks"):
         if getattr(args, name) < 1:
             ap.error(f"--{name} must be at least 1, got {getattr(args, name)}")
-    if min(sizes) < 1:
-        ap.error(f"--sizes must all be at least 1, got {args.sizes!r}")
+    study = load_study(ROOT / "studies" / "paper-fig5-gaps.yaml")
+    if not all(1 <= n <= study.size for n in sizes):
+        ap.error(
+            f"--sizes must all be from 1 to {study.size} (Figure 5's points), got {args.sizes!r}"
+        )
     d = dask_cost(args.tasks, args.workers)
     with tempfile.TemporaryDirectory(prefix="impactcell-store-") as tmp:
-        s = store_cost(sizes, args.chunks, Path(tmp))
+        s = store_cost(study, sizes, args.chunks, Path(tmp))
     lines = [
         f"What a chunk task costs beyond its points ({platform.machine()}, Python "
         f"{platform.python_version()}, {args.workers} worker processes).",
@@ -140,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             f"| {r['size']} | {r['cpu_ms']:.1f} | {r['wall_ms']:.1f} | "
             f"{r['cpu_ms'] / r['size']:.3f} |"
             for r in s
-        ),  # fmt: skip
+        ),
         "",
         "Storing: `StudyRun.finished` (chunk file with fsync, points and links in a SQLite point "
         f"store), {args.chunks} chunks per size of real Figure-5 records.",

@@ -172,7 +172,8 @@ def test_task_overhead_refuses_bad_arguments(capsys: pytest.CaptureFixture[str])
     mod = _load("task_overhead")
     for argv, said in ((["--tasks", "0"], "--tasks must be at least 1, got 0"),
                        (["--sizes", "32,x"], "--sizes must be comma-separated integers"),
-                       (["--sizes", "0,96"], "--sizes must all be at least 1")):  # fmt: skip
+                       (["--sizes", "0,96"], "--sizes must all be from 1 to 5820"),
+                       (["--sizes", "32,6000"], "--sizes must all be from 1 to 5820")):  # fmt: skip
         with pytest.raises(SystemExit) as exc:  # argparse's error, before any cluster starts
             mod.main(argv)
         assert exc.value.code == 2 and said in capsys.readouterr().err
