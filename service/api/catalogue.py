@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import sqlite3
+import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -545,10 +547,23 @@ class Catalogue:
             return int(row.id)
 
 
+WAL_TRIES = 40  # switching to WAL: tries 20 ms, 40 ms, ... apart (~16 s in all)
+
+
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
     # WAL lets readers (API requests) run while the runner thread writes progress.
     cur = dbapi_conn.cursor()
-    cur.execute("PRAGMA journal_mode=WAL")
+    for attempt in range(WAL_TRIES):
+        try:
+            cur.execute("PRAGMA journal_mode=WAL")
+            break
+        except sqlite3.OperationalError as exc:
+            # Switching a new file to WAL needs an exclusive lock, and SQLite refuses a second
+            # connection switching at the same moment at once ("database is locked"), without
+            # its busy wait: processes that open a new catalogue together try again.
+            if "locked" not in str(exc) or attempt == WAL_TRIES - 1:
+                raise
+            time.sleep(0.02 * (attempt + 1))
     # In WAL mode NORMAL syncs at checkpoints, not at every commit: a killed process loses
     # nothing committed (only a power cut may lose the last commits); the point store commits
     # once per finished chunk, and a sync each time was most of its cost.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sqlite3
 import threading
 
 import pytest
@@ -149,3 +150,44 @@ def test_bad_cron_is_rejected_with_clear_error(bad: str) -> None:
         Settings(nightly_cron=bad)
     assert Settings(nightly_cron="0 2 * * *").nightly_cron == "0 2 * * *"
     assert Settings(nightly_cron="").nightly_cron is None
+
+
+class _LockedAtFirst:
+    """A DB-API connection whose switch to WAL is refused ``locked`` times, as SQLite refuses a
+    second connection switching a new file at the same moment (at once, no busy wait)."""
+
+    def __init__(self, locked: int, message: str = "database is locked") -> None:
+        self.locked = locked
+        self.message = message
+        self.done: list[str] = []
+
+    def cursor(self) -> _LockedAtFirst:
+        return self
+
+    def execute(self, sql: str) -> None:
+        if sql == "PRAGMA journal_mode=WAL" and self.locked > 0:
+            self.locked -= 1
+            raise sqlite3.OperationalError(self.message)
+        self.done.append(sql)
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_new_catalogue_opened_by_several_processes_at_once_switches_to_wal(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from service.api import catalogue
+
+    monkeypatch.setattr(catalogue.time, "sleep", lambda s: None)
+    conn = _LockedAtFirst(locked=3)
+    catalogue._sqlite_pragmas(conn, None)
+    assert conn.done[0] == "PRAGMA journal_mode=WAL" and "PRAGMA foreign_keys=ON" in conn.done
+    # a lock that never goes away is still an error, after the tries
+    with pytest.raises(sqlite3.OperationalError, match="locked"):
+        catalogue._sqlite_pragmas(_LockedAtFirst(locked=catalogue.WAL_TRIES), None)
+    # and any other error at once
+    other = _LockedAtFirst(locked=1, message="disk I/O error")
+    with pytest.raises(sqlite3.OperationalError, match="disk I/O"):
+        catalogue._sqlite_pragmas(other, None)
+    assert other.locked == 0 and other.done == []
