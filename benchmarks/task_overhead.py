@@ -48,10 +48,6 @@ def _own_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _worker_cpu() -> float:
-    return time.process_time()
-
-
 def dask_cost(tasks: int, workers: int) -> dict[str, float]:
     """CPU per task (ms) of this process and of the workers, and the wall time (s)."""
     client, cluster = make_client(None, workers)
@@ -62,7 +58,7 @@ def dask_cost(tasks: int, workers: int) -> dict[str, float]:
             return client.submit(chunk_task, [CHEAP_POINT], {}, {}, event, False, pure=False)
 
         client.gather([submit() for _ in range(2 * workers)])  # kernels loaded, imports done
-        w0 = sum(client.run(_worker_cpu).values())
+        w0 = sum(client.run(time.process_time).values())
         c0 = _own_cpu()
         t0 = time.perf_counter()
         futures = []
@@ -73,7 +69,7 @@ def dask_cost(tasks: int, workers: int) -> dict[str, float]:
         client.gather(futures)
         wall = time.perf_counter() - t0
         own = _own_cpu() - c0
-        w1 = sum(client.run(_worker_cpu).values())
+        w1 = sum(client.run(time.process_time).values())
     finally:
         client.close()
         if cluster is not None:
