@@ -15,9 +15,15 @@ import hashlib
 import os
 import shutil
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
-__all__ = ["configure", "mark_done", "marked_done", "on_disk", "source_key"]
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock, each process compiles what it lacks
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["configure", "exclusive", "mark_done", "marked_done", "on_disk", "source_key"]
 
 _ROOT = Path(__file__).resolve().parent
 
@@ -76,10 +82,36 @@ def on_disk(function: object) -> bool | None:
         return None
 
 
-def _mark(name: str) -> Path | None:
+def _mark(name: str, suffix: str = ".done") -> Path | None:
     from numba.core import config
 
-    return Path(config.CACHE_DIR) / f"{name}.done" if config.CACHE_DIR else None
+    return Path(config.CACHE_DIR) / f"{name}{suffix}" if config.CACHE_DIR else None
+
+
+@contextlib.contextmanager
+def exclusive(name: str, on_wait: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold the cache directory's lock ``name`` (an advisory ``flock``, released when the
+    process ends however it ends). Processes sharing the cache compile a method one at a time:
+    the second waits here, then finds the kernels on disk and loads them. ``on_wait`` is called
+    once if another process holds the lock. No lock where the cache has no directory, the lock
+    file cannot be opened, or the system has no ``flock``: then both compile, as without it."""
+    path = _mark(name, ".lock")
+    fd = None
+    if path is not None and fcntl is not None:
+        with contextlib.suppress(OSError):
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        if fd is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                if on_wait is not None:
+                    on_wait()
+                fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # closing the file releases the lock
 
 
 def mark_done(name: str) -> None:

@@ -10,6 +10,7 @@ points of one sweep line in order, each starting from its predecessor's final st
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 import sys
@@ -21,7 +22,7 @@ import numpy as np
 
 from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
-from worker.numba_cache import mark_done, marked_done, on_disk
+from worker.numba_cache import exclusive, mark_done, marked_done, on_disk
 from worker.solvers.dispatch import KERNELS, RUNS
 from worker.solvers.engine import (
     DIVERGENCE_FACTOR,
@@ -332,20 +333,35 @@ def warm_up(method: str | None = None, *, quiet: bool = False) -> None:
         if m in _warm:
             continue
         _warm.add(m)
-        p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, modes=1)
-        cached = kernels_cached(m)
-        if cached is False and not quiet:
-            print(
-                f"impactcell: compiling the numba kernels of method {m!r} (once per machine, "
-                f"then cached; usually {COMPILE_SECONDS[m]} s) ...",
-                file=sys.stderr, flush=True,
-            )  # fmt: skip
-        t0 = time.perf_counter()
-        s = SolverSettings(method=m, steps_per_period=64, max_periods=3, window=1)
-        # a point that impacts and a point that is linear at once: every kernel path compiles
-        simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
-        compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
-        mark_done(_warm_mark(m))
-        if cached is False and not quiet:
-            print(f"impactcell: {m!r} kernels ready in {time.perf_counter() - t0:.0f} s",
-                  file=sys.stderr, flush=True)  # fmt: skip
+        if cache_ready(m):
+            _warm_one(m, False, quiet)
+            continue
+        # Processes sharing the cache (an API and a CLI run, test workers) compile a method one
+        # at a time; the later ones load what the first wrote.
+        with exclusive(_warm_mark(m), None if quiet else functools.partial(_say_waiting, m)):
+            _warm_one(m, kernels_cached(m) is False, quiet)
+
+
+def _say_waiting(method: str) -> None:
+    print(f"impactcell: another process is compiling method {method!r} into the same cache; "
+          "waiting to load it from there ...", file=sys.stderr, flush=True)  # fmt: skip
+
+
+def _warm_one(method: str, compiling: bool, quiet: bool) -> None:
+    """Run the points that compile (or load) every kernel of ``method``; mark the cache."""
+    if compiling and not quiet:
+        print(
+            f"impactcell: compiling the numba kernels of method {method!r} (once per machine, "
+            f"then cached; usually {COMPILE_SECONDS[method]} s) ...",
+            file=sys.stderr, flush=True,
+        )  # fmt: skip
+    t0 = time.perf_counter()
+    p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, modes=1)
+    s = SolverSettings(method=method, steps_per_period=64, max_periods=3, window=1)
+    # a point that impacts and a point that is linear at once: every kernel path compiles
+    simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
+    compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
+    mark_done(_warm_mark(method))
+    if compiling and not quiet:
+        print(f"impactcell: {method!r} kernels ready in {time.perf_counter() - t0:.0f} s",
+              file=sys.stderr, flush=True)  # fmt: skip

@@ -1,5 +1,7 @@
 """numba's cache is keyed by the worker's source code, so no kernel runs stale machine code."""
 
+import threading
+import time
 from pathlib import Path
 
 from numba.core import config
@@ -44,3 +46,42 @@ def test_an_unwritable_base_leaves_numba_its_default(tmp_path, monkeypatch):
     monkeypatch.setattr(numba_cache, "_writable", lambda directory: False)
     assert numba_cache.configure() is None
     assert config.CACHE_DIR == "unchanged"
+
+
+def _enter_in_a_thread(name: str, events: list[str]) -> threading.Thread:
+    def enter() -> None:
+        with numba_cache.exclusive(name, lambda: events.append("waiting")):
+            events.append("inside")
+
+    t = threading.Thread(target=enter, daemon=True)
+    t.start()
+    return t
+
+
+def test_exclusive_holds_a_second_holder_until_the_first_is_done(tmp_path, monkeypatch):
+    # flock locks belong to open files, so a thread with its own open file stands for a second
+    # process sharing the cache
+    monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path))
+    events: list[str] = []
+    with numba_cache.exclusive("warm-x"):
+        t = _enter_in_a_thread("warm-x", events)
+        time.sleep(0.3)
+        assert events == ["waiting"] and t.is_alive()
+        other: list[str] = []
+        _enter_in_a_thread("warm-y", other).join(5)  # another name is another lock
+        assert other == ["inside"]
+    t.join(5)
+    assert events == ["waiting", "inside"]
+    assert (tmp_path / "warm-x.lock").exists()
+
+
+def test_exclusive_without_a_cache_directory_holds_nothing(tmp_path, monkeypatch):
+    monkeypatch.setattr(config, "CACHE_DIR", "")
+    events: list[str] = []
+    with numba_cache.exclusive("warm-x"):
+        _enter_in_a_thread("warm-x", events).join(5)
+    assert events == ["inside"]
+    monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path / "missing"))  # cannot open: no lock
+    with numba_cache.exclusive("warm-x"):
+        _enter_in_a_thread("warm-x", events).join(5)
+    assert events == ["inside", "inside"]

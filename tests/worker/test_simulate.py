@@ -5,12 +5,15 @@ import math
 import os
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import worker.simulate as simulate
+from worker import numba_cache
 from worker.model import CellParams, assemble, linear_transmittance_db
 from worker.simulate import PointResult, SolverSettings, simulate_chunk, simulate_point
 from worker.solvers.settings import OUTCOMES
@@ -171,6 +174,21 @@ def test_first_compilation_says_what_it_does(monkeypatch, capsys):
     monkeypatch.setattr(simulate, "kernels_cached", lambda method: True)
     simulate.warm_up("euler")
     assert capsys.readouterr().err == ""
+
+
+def test_warm_up_waits_for_another_process_compiling_the_method(monkeypatch, capsys):
+    # the lock held here stands for a second process compiling euler into the same cache
+    monkeypatch.setattr(simulate, "_warm", set())
+    monkeypatch.setattr(simulate, "cache_ready", lambda method=None: False)
+    with numba_cache.exclusive("warm-euler"):
+        t = threading.Thread(target=simulate.warm_up, args=("euler",), daemon=True)
+        t.start()
+        time.sleep(0.3)
+        assert t.is_alive() and "euler" in simulate._warm
+    t.join(120)
+    assert not t.is_alive()
+    err = capsys.readouterr().err
+    assert "another process is compiling method 'euler' into the same cache" in err
 
 
 def test_kernels_are_in_the_on_disk_cache_after_warm_up():
