@@ -15,7 +15,7 @@ import worker  # noqa: E402, F401
 
 # --------------------------------------------------------------------------- test tiers
 
-# ``pytest -m "not slow"`` is the developer loop (under a minute); CI runs everything. A test
+# ``pytest -n 2 -m "not slow"`` is the developer loop (~80 s on 2 cores); CI runs everything. A test
 # that uses one of these fixtures starts a real dask cluster, so it is slow wherever it lives;
 # servers, subprocesses and whole studies are marked where they are written.
 CLUSTER_FIXTURES = frozenset({"dask_address", "cluster_client"})
@@ -25,3 +25,23 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if CLUSTER_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _each_method_compiled_once() -> None:
+    """Under pytest-xdist (``-n 2``, the README's test command) each test process would
+    compile every kernel it meets, all at once on a fresh cache (CI: ~1 min of CPU each). Each
+    process warms every method up first, starting from a different one: the first to reach a
+    method compiles it while the other compiles another, and a process that reaches a method
+    being compiled waits for it (``worker.numba_cache.exclusive``) and loads it."""
+    name = os.environ.get("PYTEST_XDIST_WORKER")
+    if not name:
+        return
+    from worker.simulate import METHODS, warm_up
+
+    k = int(name.removeprefix("gw")) % len(METHODS)
+    for method in METHODS[k:] + METHODS[:k]:
+        warm_up(method, quiet=True)
