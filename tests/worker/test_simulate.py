@@ -1,13 +1,8 @@
 """The public door (worker/simulate.py): records, histories, settings, refusals, warm-up."""
 
-import json
 import math
-import os
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -194,53 +189,3 @@ def test_warm_up_waits_for_another_process_compiling_the_method(monkeypatch, cap
 def test_kernels_are_in_the_on_disk_cache_after_warm_up():
     simulate.warm_up()
     assert all(simulate.kernels_cached(m) for m in ("event", "exponential", "euler"))
-
-
-_NOTHING_LEFT_TO_COMPILE = r"""
-import importlib, json, pkgutil
-import worker
-from numba.core.registry import CPUDispatcher
-from worker.model import CellParams
-from worker.simulate import SolverSettings, cache_ready, simulate_point, warm_up
-
-def compiled():
-    out = {}
-    for info in pkgutil.walk_packages(worker.__path__, "worker."):
-        mod = importlib.import_module(info.name)
-        for name, obj in vars(mod).items():
-            if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__:
-                out[f"{mod.__name__}.{name}"] = sum(obj.stats.cache_misses.values())
-    return out
-
-ready = [cache_ready("event")]
-warm_up("event", quiet=True)
-ready.append(cache_ready("event"))
-before = compiled()
-cell = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1)
-seen = set()
-# linear after a transient, orbits found by extrapolation, an irregular response
-for g in (3.37, 1.03, 0.45, 2.35):
-    seen.add(simulate_point(CellParams(gamma_r=g, **cell), SolverSettings()).outcome)
-seen.add(simulate_point(CellParams(gamma_r=0.85, **cell),
-                        SolverSettings(max_periods=200, window=10)).outcome)
-after = compiled()
-print(json.dumps([sorted(seen), sorted(k for k in after if after[k] != before.get(k)), ready]))
-"""
-
-
-@pytest.mark.slow
-def test_after_warm_up_no_point_compiles_anything(tmp_path):
-    # On a fresh cache, warm_up compiles what points need (the kernels, and the engine's
-    # helpers that only extrapolated orbits reach); a worker then only loads them. Before, every
-    # worker compiled the helpers at its first periodic point (~12 s, all workers at once).
-    # A fresh interpreter on an empty cache: what this process compiled cannot hide anything.
-    root = Path(__file__).resolve().parents[2]
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    script = [sys.executable, "-c", _NOTHING_LEFT_TO_COMPILE]
-    out = subprocess.run(script, cwd=root, env=env, capture_output=True, text=True, check=True,
-                         timeout=900).stdout  # fmt: skip
-    seen, compiled_later, ready = json.loads(out.strip().splitlines()[-1])
-    assert {"linear", "periodic", "irregular"} <= set(seen), seen
-    assert compiled_later == [], f"compiled after warm_up: {compiled_later}"
-    # the finished warm-up is recorded in the cache (workers then load the kernels as they start)
-    assert ready == [False, True]

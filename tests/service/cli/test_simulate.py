@@ -121,18 +121,60 @@ def test_warmup_loads_or_compiles_the_kernels(capsys: pytest.CaptureFixture[str]
     assert "invalid choice: 'rk4'" in capsys.readouterr().err
 
 
+# A worker's process on a cache that a warmup filled: the numbers of compilations (numba's
+# cache misses) of every compiled function of the simulator, after points of every outcome.
+_WORKER_AFTER_WARMUP = r"""
+import importlib, json, pkgutil
+import worker
+from numba.core.registry import CPUDispatcher
+from worker.model import CellParams
+from worker.simulate import SolverSettings, cache_ready, simulate_point, warm_up
+
+def compiled():
+    out = {}
+    for info in pkgutil.walk_packages(worker.__path__, "worker."):
+        mod = importlib.import_module(info.name)
+        for name, obj in vars(mod).items():
+            if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__:
+                out[f"{mod.__name__}.{name}"] = sum(obj.stats.cache_misses.values())
+    return out
+
+ready = cache_ready("event")
+warm_up("event", quiet=True)
+cell = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1)
+seen = set()
+# linear after a transient, orbits found by extrapolation, an irregular response
+for g in (3.37, 1.03, 0.45, 2.35):
+    seen.add(simulate_point(CellParams(gamma_r=g, **cell), SolverSettings()).outcome)
+seen.add(simulate_point(CellParams(gamma_r=0.85, **cell),
+                        SolverSettings(max_periods=200, window=10)).outcome)
+print(json.dumps([ready, sorted(seen), sorted(k for k, n in compiled().items() if n)]))
+"""
+
+
 @pytest.mark.slow
-def test_warmup_fills_an_empty_cache_then_loads_it(tmp_path: Path) -> None:
-    # A fresh numba cache: the first warmup compiles (and says so), the second only loads.
+def test_warmup_compiles_an_empty_cache_then_no_point_compiles_anything(tmp_path: Path) -> None:
+    # On a fresh cache the first warmup compiles (and says so) what points need: the kernels,
+    # and the engine's helpers that only extrapolated orbits reach (before, every worker
+    # compiled those at its first periodic point, ~12 s, all workers at once). A new process
+    # then compiles nothing, through points of every outcome; a second warmup only loads.
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
-    first = subprocess_run("warmup", "--method", "euler", env=env)
+    first = subprocess_run("warmup", "--method", "event", env=env)
     assert first.returncode == 0, first.stderr
-    assert "euler: compiling (once per machine) ..." in first.stdout
-    assert "euler: ready in" in first.stdout and "(cached on disk)" in first.stdout
+    assert "event: compiling (once per machine) ..." in first.stdout
+    assert "event: ready in" in first.stdout and "(cached on disk)" in first.stdout
     assert list((tmp_path / "numba").rglob("*.nbi")), "no numba cache index written"
-    again = subprocess_run("warmup", "--method", "euler", env=env)
+    script = [sys.executable, "-c", _WORKER_AFTER_WARMUP]
+    out = subprocess.run(script, cwd=ROOT, env=env, capture_output=True, text=True, check=True,
+                         timeout=600).stdout  # fmt: skip
+    ready, seen, compiled = json.loads(out.strip().splitlines()[-1])
+    # the finished warm-up is recorded in the cache (workers then load the kernels as they start)
+    assert ready is True
+    assert {"linear", "periodic", "irregular"} <= set(seen), seen
+    assert compiled == [], f"compiled after the warmup: {compiled}"
+    again = subprocess_run("warmup", "--method", "event", env=env)
     assert again.returncode == 0, again.stderr
-    assert "euler: loading from numba's cache ..." in again.stdout
+    assert "event: loading from numba's cache ..." in again.stdout
 
 
 @pytest.mark.slow
