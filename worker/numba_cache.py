@@ -98,8 +98,8 @@ def exclusive(name: str, on_wait: Callable[[], None] | None = None) -> Iterator[
     path = _mark(name, ".lock")
     fd = None
     if path is not None and fcntl is not None:
-        with contextlib.suppress(OSError):
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        with contextlib.suppress(OSError):  # read-only is enough for flock
+            fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o666)
     try:
         if fd is not None:
             try:
