@@ -65,7 +65,10 @@ def test_exclusive_holds_a_second_holder_until_the_first_is_done(tmp_path, monke
     events: list[str] = []
     with numba_cache.exclusive("warm-x"):
         t = _enter_in_a_thread("warm-x", events)
-        time.sleep(0.3)
+        deadline = time.monotonic() + 30  # a loaded machine may start the thread late
+        while not events and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.1)  # time to get in, if the lock did not hold it
         assert events == ["waiting"] and t.is_alive()
         other: list[str] = []
         _enter_in_a_thread("warm-y", other).join(5)  # another name is another lock

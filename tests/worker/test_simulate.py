@@ -175,10 +175,15 @@ def test_warm_up_waits_for_another_process_compiling_the_method(monkeypatch, cap
     # the lock held here stands for a second process compiling euler into the same cache
     monkeypatch.setattr(simulate, "_warm", set())
     monkeypatch.setattr(simulate, "cache_ready", lambda method=None: False)
+    said = []
+    say = simulate._say_waiting
+    monkeypatch.setattr(simulate, "_say_waiting", lambda m: (say(m), said.append(m)))
     with numba_cache.exclusive("warm-euler"):
         t = threading.Thread(target=simulate.warm_up, args=("euler",), daemon=True)
         t.start()
-        time.sleep(0.3)
+        deadline = time.monotonic() + 30  # a loaded machine may start the thread late
+        while not said and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert t.is_alive() and "euler" in simulate._warm
     t.join(120)
     assert not t.is_alive()
