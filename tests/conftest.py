@@ -1,8 +1,16 @@
-"""Test-wide setup: one BLAS thread, and the test tiers."""
+"""Test-wide setup: cached bytecode, one BLAS thread, and the test tiers."""
 
 import os
+import sys
 
 import pytest
+
+# This machine (and CI's) sets PYTHONDONTWRITEBYTECODE: every test process would then compile
+# the service's modules and re-rewrite every test module's asserts on every run (~8 s of each
+# process's ~17 s of collection), and so would every server, CLI and worker process a test
+# starts. The caches go to __pycache__ folders, which git ignores.
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
 # The kernels and references are small dense problems: a multi-threaded BLAS only contends with
 # the dask worker processes on a 2-core machine (scipy's expm ran 40x slower under load with it).
@@ -15,7 +23,7 @@ import worker  # noqa: E402, F401
 
 # --------------------------------------------------------------------------- test tiers
 
-# ``pytest -n 2 -m "not slow"`` is the developer loop (~80 s on 2 cores); CI runs everything. A test
+# ``pytest -n 2 -m "not slow"`` is the developer loop (~60 s on 2 cores); CI runs everything. A test
 # that uses one of these fixtures starts a real dask cluster, so it is slow wherever it lives;
 # servers, subprocesses and whole studies are marked where they are written.
 CLUSTER_FIXTURES = frozenset({"dask_address", "cluster_client"})

@@ -335,6 +335,7 @@ class _Health(BaseHTTPRequestHandler):
         pass
 
 
+@pytest.mark.slow  # a server and a new Python process each
 @pytest.mark.parametrize("service", ["api", "scheduler"])
 def test_healthcheck_command_works(service: str) -> None:
     """The healthcheck's python -c exits 0 on 200 from /health, non-zero on an error."""

@@ -54,6 +54,7 @@ def test_a_target_already_set_is_the_users_choice(monkeypatch: pytest.MonkeyPatc
     assert (os.environ[cpu.BLAS_ENV], os.environ[cpu.NUMBA_ENV]) == ("Sandybridge", "generic")
 
 
+@pytest.mark.slow  # a new Python process
 def test_a_fresh_process_that_imports_the_worker_first_runs_the_pinned_targets() -> None:
     env = _fresh_env()
     code = (
@@ -80,6 +81,7 @@ def test_this_process_is_pinned_by_conftest() -> None:
         assert cpu.kernels() and cpu.compiled_for()
 
 
+@pytest.mark.slow  # a new Python process
 def test_a_process_that_loaded_numba_first_is_told() -> None:
     env = _fresh_env()
     out = subprocess.run(
@@ -106,6 +108,7 @@ import {module}
 """
 
 
+@pytest.mark.slow  # a new Python process each, importing the service
 @pytest.mark.parametrize(
     "module", ["service.api.app", "service.regression.run", "service.client", "service.cli"]
 )

@@ -395,6 +395,7 @@ entry()
 """
 
 
+@pytest.mark.slow  # new Python processes
 @pytest.mark.parametrize(("argv", "code"), [(["studies"], 0), (["show", "/nonexistent.nc"], 2)])
 def test_the_command_exits_quickly_but_completely(argv: list[str], code: int) -> None:
     """``entry`` skips the interpreter's teardown, not what a normal exit does: other threads

@@ -368,6 +368,7 @@ def test_worker_warm_up_uses_the_default_method(cluster_client: Any) -> None:
     assert all("event" in methods for methods in cached.values())
 
 
+@pytest.mark.slow  # a new Python process
 def test_a_worker_imports_only_the_simulator_to_run_a_chunk(tmp_path: Path) -> None:
     """A worker imports the module of the function it is sent: the chunk task's module must not
     pull in the runner's schema, datasets and store (~1.3 s per worker before its first point)."""
@@ -390,6 +391,7 @@ def test_a_worker_imports_only_the_simulator_to_run_a_chunk(tmp_path: Path) -> N
     assert _loaded_after("service.studies.tasks", heavy) == []
 
 
+@pytest.mark.slow  # a new Python process
 def test_the_process_that_hands_out_points_imports_no_scipy_solvers() -> None:
     """scipy's linear algebra and special functions cost ~0.4 s of CPU to import, on the
     command's critical path before its cluster starts; only a point's set-up (``exponential``)
