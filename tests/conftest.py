@@ -1,5 +1,6 @@
 """Test-wide setup: cached bytecode, one BLAS thread, and the test tiers."""
 
+import gc
 import os
 import sys
 
@@ -33,6 +34,13 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if CLUSTER_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    # What collection built (the service, hypothesis, xarray, every test item: ~1e6 objects)
+    # lives to the end: out of the garbage collector's sight, each full collection during the
+    # tests, and pytest's five at the end of the session, no longer walk it all.
+    gc.freeze()
 
 
 # --------------------------------------------------------------------------- kernels
