@@ -1,6 +1,7 @@
 """The distribution: every package listed, and the shipped studies installed as package data.
 
-The ``slow`` test builds the wheel, installs it into a folder of its own and runs the commands
+The ``slow`` test builds the wheel (no build isolation: the test extra holds the build backend,
+so no package index is reached), installs it into a folder of its own and runs the commands
 that read the shipped files from elsewhere than the repository (the folder comes first on the
 path, so the editable install of this checkout is not what answers).
 """
@@ -16,9 +17,11 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from packaging.requirements import Requirement
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIG = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
+CONFIG = PYPROJECT["tool"]["setuptools"]
 
 
 def test_every_package_folder_is_listed() -> None:
@@ -40,11 +43,22 @@ def _shipped_files() -> set[str]:
     return {str(p.relative_to(root)) for g in globs for p in root.glob(g)}
 
 
+def test_the_test_extra_carries_the_build_backend() -> None:
+    """The wheel test builds without isolation, with what the test extra installed."""
+    test = map(Requirement, PYPROJECT["project"]["optional-dependencies"]["test"])
+    extra = {r.name: r for r in test}
+    for r in map(Requirement, PYPROJECT["build-system"]["requires"]):
+        assert r.name in extra and extra[r.name].specifier == r.specifier, r
+
+
 @pytest.mark.slow
 def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) -> None:
     dist = tmp_path / "dist"
     build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(dist), str(ROOT)],
+        # No build isolation and no index: pip would fetch the build backend from the package
+        # index, and no test reaches the internet; the test extra installs it (checked above).
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
+         "-q", "-w", str(dist), str(ROOT)],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert build.returncode == 0, build.stderr
@@ -57,8 +71,8 @@ def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) ->
 
     site = tmp_path / "site"
     install = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(site),
-         str(wheel)],
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
+         str(site), str(wheel)],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert install.returncode == 0, install.stderr
