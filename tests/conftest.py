@@ -37,7 +37,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
-    # What collection built (the service, hypothesis, xarray, every test item: ~1e6 objects)
+    # What collection built (the service, hypothesis, xarray, every test item: ~3e5 objects)
     # lives to the end: out of the garbage collector's sight, each full collection during the
     # tests, and pytest's five at the end of the session, no longer walk it all.
     gc.freeze()
