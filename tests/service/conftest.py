@@ -51,33 +51,33 @@ def catalogue_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[st
 
     from service.api.catalogue import _Base
 
-    url = _own_schema(url)
+    url, schema = _own_schema(url)
     engine = create_engine(url)
-    _Base.metadata.drop_all(engine)
-    with engine.begin() as conn:  # and the migrations' stamp, or the next start would trust it
+    with engine.begin() as conn:
+        if schema:
+            conn.execute(text(f'CREATE SCHEMA IF NOT EXISTS "{schema}"'))
+        # the catalogue's tables, and the migrations' stamp, or the next start would trust it
+        _Base.metadata.drop_all(conn)
         conn.execute(text("DROP TABLE IF EXISTS alembic_version"))
     engine.dispose()
     yield url
 
 
-def _own_schema(url: str) -> str:
-    """``url`` for this test process alone. Under pytest-xdist (the README's ``-n 2``) both
-    processes get the one database CI starts, and each empties it before its tests: a catalogue
-    test in one process lost its tables to the other's. Each process gets its own schema
-    instead (``search_path``, so the catalogue's unqualified tables and the migrations' stamp
-    live there); the service under test reads the URL like any other."""
+def _own_schema(url: str) -> tuple[str, str | None]:
+    """``url`` for this test process alone, and its schema (``None``: outside xdist, the URL as
+    it is). Under pytest-xdist (the README's ``-n 2``) both processes get the one database CI
+    starts, and each empties it before its tests: a catalogue test in one process lost its
+    tables to the other's. Each process gets its own schema instead (``search_path``, so the
+    catalogue's unqualified tables and the migrations' stamp live there); the service under
+    test reads the URL like any other."""
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     if not worker:
-        return url
-    from sqlalchemy import create_engine, make_url, text
+        return url, None
+    from sqlalchemy import make_url
 
     schema = f"impactcell_test_{worker}"
-    engine = create_engine(url)
-    with engine.begin() as conn:
-        conn.execute(text(f'CREATE SCHEMA IF NOT EXISTS "{schema}"'))
-    engine.dispose()
     own = make_url(url).update_query_dict({"options": f"-csearch_path={schema}"})
-    return own.render_as_string(hide_password=False)
+    return own.render_as_string(hide_password=False), schema
 
 
 @pytest.fixture
