@@ -174,6 +174,26 @@ def test_a_subharmonic_orbit_is_reported_with_its_smallest_period(gamma_r, perio
     assert (period * np.array(r.impacts_per_period) % 1 == 0).all()
 
 
+def test_an_orbit_longer_than_eight_periods_is_periodic_not_irregular():
+    # Figure 5's cell at θ 0.1, gap 0.1: a period-9 orbit (solver version 6 looked for periods
+    # up to 8, ran into the window statistics and called it irregular, standard error 7e-8 dB)
+    p = cell(gamma_r=1.46, theta=0.1)
+    r = simulate_point(p, history_periods=9)
+    assert r.outcome == "periodic" and r.response_period == 9 > 8
+    assert (9 * np.array(r.impacts_per_period) % 1 == 0).all()
+    # the orbit as integrated: the state at each period end (the history starts one sub-grid
+    # interval into the orbit; final_state is its start) repeats after 9 periods, not before
+    T = 2.0 * math.pi / p.gamma_r
+    h = r.history
+    ends = [r.final_state] + [h["state"][np.flatnonzero(np.isclose(h["tau"], k * T, rtol=0.0,
+                                                                   atol=1e-9 * T))[-1]]
+                              for k in range(1, 10)]  # fmt: skip
+    scale = np.max(np.abs(ends))
+    gaps = [np.max(np.abs(ends[k] - ends[0])) / scale for k in range(1, 10)]
+    assert gaps[8] < 1e-8
+    assert min(gaps[:8]) > 1e-3
+
+
 # --------------------------------------------------------------------------- irregular
 
 

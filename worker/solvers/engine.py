@@ -649,7 +649,7 @@ class _Engine:
         state: the response is approaching (or is) a period-p orbit, not irregular (0: none)."""
         if self.nrecent < RECENT:
             return 0
-        return int(_converging_p(self.recent, ms.MAX_PERIOD))
+        return int(_converging_p(self.recent, ms.MAX_CANDIDATE))
 
     def _coexistence_note(self) -> str:
         """Irregular motion where the impact-free steady state is also admissible may be
