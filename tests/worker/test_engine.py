@@ -194,6 +194,21 @@ def test_an_orbit_longer_than_eight_periods_is_periodic_not_irregular():
     assert min(gaps[:8]) > 1e-3
 
 
+def test_a_slowly_converging_long_orbit_vetoes_the_irregular_claim():
+    # the work-precision reference's settings at spectrum A, γ_r 2.264: the sequence approaches
+    # a period-17 orbit slowly; with the veto watching p <= 8 only, its converged window
+    # statistics were claimed irregular at 300 periods, before the orbit repeated to 1e-11
+    p = cell(gamma_r=2.264407)
+    tight = SolverSettings(steps_per_period=256, periodicity_tol=1e-11)
+    r = simulate_point(p, tight, event_tol=1e-13)
+    assert r.outcome == "periodic" and r.response_period == 17
+    assert r.periods > 300  # it went on past the old claim
+    # the default settings reach the same orbit by its repeating alone
+    d = simulate_point(p)
+    assert d.outcome == "periodic" and d.response_period == 17
+    assert r.transmittance_db == pytest.approx(d.transmittance_db, abs=1e-8)
+
+
 # --------------------------------------------------------------------------- irregular
 
 

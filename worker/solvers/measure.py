@@ -92,8 +92,7 @@ CHECK_QUIET = 8
 # into the window statistics and were reported irregular with standard errors of 1e-8 dB.
 MAX_PERIOD = 40
 # Longest period whose geometric approach is extrapolated (``candidate``; ``engine._extrapolate``
-# needs four p-spaced samples of the 64 it keeps) and watched by the irregular claim's
-# convergence guard.
+# needs four p-spaced samples of the 64 it keeps).
 MAX_CANDIDATE = 8
 NOISE = 1e-12  # relative size of a state difference that is integration noise (event times)
 RING = 2 * MAX_PERIOD + 1  # stroboscopic samples kept: periodicity looks 2p back
