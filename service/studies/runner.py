@@ -89,6 +89,7 @@ CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, 
 # Single-threaded BLAS in worker processes: dask's ``distributed.nanny.pre-spawn-environ``
 # default already sets these to 1 before a worker process starts; only missing ones are added.
 _ONE_BLAS_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_PROFILE_ENV = "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED"
 
 Progress = Callable[[int, int], None]  # (points done, total points)
 ChunkDone = Callable[[int, int, list[dict[str, Any]]], None]  # (start, stop, records)
@@ -136,6 +137,19 @@ def _worker_environ() -> None:
         dask.config.set({"distributed.nanny.pre-spawn-environ": {**env, **missing}})
 
 
+def _no_worker_profiler() -> None:
+    """Start embedded workers without dask's statistical profiler (unless
+    ``$DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED`` asks for it): a thread in every worker that
+    samples every thread's stack each 10 ms, for the dashboard's profile page. On Figure 5
+    (``benchmarks/run_command.py``, 5 interleaved pairs) it cost the two workers 1.1 s of CPU
+    (7.3 s outside their task threads with it, 6.2 s without), on a machine whose two cores are
+    the bound."""
+    import dask
+
+    if _PROFILE_ENV not in os.environ:
+        dask.config.set({"distributed.worker.profile.enabled": False})
+
+
 def make_client(
     scheduler: str | None, workers: int | None, *, method: str | None = DEFAULT_METHOD
 ) -> tuple[Any, Any]:
@@ -156,6 +170,7 @@ def make_client(
     if scheduler:
         return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False), None
     _worker_environ()
+    _no_worker_profiler()
     n = workers or os.cpu_count() or 1
     ready = simulate.cache_ready(method)
     with ThreadPoolExecutor(1, thread_name_prefix="impactcell-cluster-start") as pool:

@@ -311,10 +311,12 @@ assert simulate.cache_ready("event")
 client, cluster = make_client(None, 2, method="event")
 try:
     loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
+    profiling = client.run(lambda dask_worker: "profile" in dask_worker.periodic_callbacks)
     from xarray.backends.locks import get_dask_scheduler
 
     # what xarray's NetCDF writes in this process would lock on
-    print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler()]))
+    print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler(),
+                      sorted(profiling.values())]))
 finally:
     _close(client, cluster)
 """
@@ -322,14 +324,16 @@ finally:
 
 @pytest.mark.slow  # real worker processes
 def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none() -> None:
-    env = {k: v for k, v in os.environ.items() if k != "IMPACTCELL_SCHEDULER"}
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("IMPACTCELL_SCHEDULER", runner._PROFILE_ENV)}  # fmt: skip
     fill = "from worker import simulate; simulate.fill_cache('event')"
     subprocess.run([sys.executable, "-c", fill], cwd=ROOT, env=env, check=True, timeout=600)
     script = [sys.executable, "-c", _WORKERS_LOAD_AT_START]
     out = subprocess.run(
         script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
-    parent, workers, netcdf_lock = json.loads(out.strip().splitlines()[-1])
+    parent, workers, netcdf_lock, profiling = json.loads(out.strip().splitlines()[-1])
+    assert profiling == [False, False]  # no worker samples its threads' stacks every 10 ms
     assert parent == []  # nothing compiled or loaded in the process that only hands out points
     assert workers == [["event"], ["event"]]  # loaded before anyone asked (no warm_up yet)
     # The client is not dask's default, so a NetCDF write (the results file, collated while the
@@ -357,6 +361,19 @@ def test_workers_get_one_blas_thread() -> None:
     env = dask.config.get("distributed.nanny.pre-spawn-environ")
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         assert int(env[var]) == 1, var
+
+
+def test_embedded_workers_run_without_dasks_profiler_unless_asked(monkeypatch) -> None:
+    import dask
+
+    with dask.config.set({"distributed.worker.profile.enabled": True}):
+        monkeypatch.delenv(runner._PROFILE_ENV, raising=False)
+        runner._no_worker_profiler()
+        assert dask.config.get("distributed.worker.profile.enabled") is False
+    with dask.config.set({"distributed.worker.profile.enabled": True}):
+        monkeypatch.setenv(runner._PROFILE_ENV, "True")  # the user's choice stands
+        runner._no_worker_profiler()
+        assert dask.config.get("distributed.worker.profile.enabled") is True
 
 
 def test_worker_warm_up_uses_the_default_method(cluster_client: Any) -> None:
