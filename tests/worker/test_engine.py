@@ -209,6 +209,41 @@ def test_a_slowly_converging_long_orbit_vetoes_the_irregular_claim():
     assert r.transmittance_db == pytest.approx(d.transmittance_db, abs=1e-8)
 
 
+def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
+    # Figure 5's cell at θ 0.5, gap 0.1, γ_r 1.42: the period-1 orbit is past its period
+    # doubling (its monodromy matrix's spectral radius is 1.025). Extrapolation converges to
+    # unstable fixed points too, and the orbit repeats when integrated from there: solver
+    # version 7 reported it (period 1, Γ -3.6595 dB). The trajectory goes to a period-2 orbit.
+    p = cell(gamma_r=1.42, theta=0.5)
+    r = simulate_point(p)
+    # plain iteration settles there after ~500 periods (a long transient: the larger budget
+    # keeps it from an irregular claim at 300)
+    plain = simulate_point(p, SolverSettings(extrapolate=False, max_periods=4000))
+    assert plain.outcome == "periodic" and plain.response_period == 2
+    assert r.outcome == "periodic" and r.response_period == 2
+    assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-8)
+    assert 0.0 < r.floquet_multiplier < 1.0
+
+
+def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts():
+    # Figure 5's cell at θ 0.1, gap 0.7, γ_r 1.16: solver version 7 reported 0.489, the largest
+    # Ritz value of the extrapolation, which the sequence's slowest mode hardly entered
+    p = cell(gamma_r=1.16, theta=0.1, g1=0.7, g2=0.7)
+    r = simulate_point(p)
+    assert r.outcome == "periodic" and r.response_period == 1
+    # independently: start near the orbit, step two periods at a time, and fit how fast the
+    # distance to the orbit shrinks (a complex pair of multipliers: it oscillates as it decays)
+    x = np.asarray(r.final_state)
+    y = x + 1e-4 * np.max(np.abs(x)) * np.random.default_rng(0).standard_normal(x.size)
+    two = SolverSettings(early_stop=False, max_periods=2, window=1)
+    dist = []
+    for _ in range(25):
+        y = np.asarray(simulate_point(p, two, initial_state=y).final_state)
+        dist.append(np.max(np.abs(y - x)))
+    slope = np.polyfit(np.arange(4, 25), np.log(dist[4:]), 1)[0]
+    assert r.floquet_multiplier == pytest.approx(math.exp(slope / 2.0), abs=0.01)
+
+
 # --------------------------------------------------------------------------- irregular
 
 

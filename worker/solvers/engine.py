@@ -89,6 +89,7 @@ MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
 # The main trajectory accumulates harmonics (for an irregular response's θ_eff) only over the
 # windows its statistics can use: the last MIN_WINDOWS before the earliest irregular claim on.
 # Orbits are always measured (their own side run).
+FD_STEP = 1e-7  # relative state perturbation of the monodromy matrix's finite differences
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
@@ -424,6 +425,7 @@ class _Engine:
         ) if settings.early_stop else 0  # fmt: skip
         self.quiet_backoff = 1
         self.backoff = 4
+        self.unstable: list[np.ndarray] = []  # x* of the orbits found unstable
 
     # ------------------------------------------------------------------ bookkeeping
 
@@ -550,6 +552,29 @@ class _Engine:
             return None
         return _Orbit(x0.copy(), got[0], p, rho)
 
+    def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
+                          impacts: float) -> float | None:  # fmt: skip
+        """The dominant Floquet multiplier's modulus of the p-periodic orbit through ``x0``
+        (``fx0``: the state p periods after it): the spectral radius of the monodromy matrix,
+        the p-period map's Jacobian, by forward differences of ``nx`` unmeasured side runs
+        (the caller saves/restores the run). None where a perturbed run has other impacts than
+        the orbit (``impacts`` over p periods): the map is not smooth there (grazing)."""
+        scale = float(np.max(np.abs(x0)))
+        J = np.empty((self.nx, self.nx))
+        for i in range(self.nx):
+            h = FD_STEP * scale
+            x = x0.copy()
+            x[i] += h
+            got = self._side_run(x, p, measure=False)
+            if got is None:
+                return None
+            rows, samples = got
+            if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() != impacts:
+                return None
+            J[:, i] = (samples[-1] - fx0) / h
+        ev = np.linalg.eigvals(J)
+        return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
+
     def _extrapolate(self, p: int) -> _Orbit | None:
         """Extrapolate the p-periodic limit of the sequence, then confirm it by integration."""
         avail = self.nrecent // p
@@ -573,6 +598,10 @@ class _Engine:
         if fit is None or fit[2] > MAX_FIT or fit[1] >= 0.999:
             return None  # the sequence is not (yet) a linear contraction: no side runs
         rho0 = fit[1]
+        x_near = fit[0]
+        near = 1e-3 * float(np.max(np.abs(x_near)))
+        if any(_max_diff(u, x_near) <= near for u in self.unstable):
+            return None  # an orbit already found unstable (any candidate p): no side runs
         snap = self.run.save()
         try:
             r_prev = math.inf
@@ -603,7 +632,26 @@ class _Engine:
                         measured = self._side_run(xs, p)
                         if measured is None:
                             return None
-                        return _Orbit(xs.copy(), measured[0], q, rho)
+                        # Only an attracting orbit can be the one the trajectory approaches:
+                        # extrapolation also converges to unstable fixed points (a period-1
+                        # orbit past its period doubling), and the Ritz values of a short
+                        # sequence miss the slowest mode (0.41 where the map has 0.64) or
+                        # add spurious ones (above 1 where it has 0.55). Where the map is not
+                        # smooth (None: zero gaps, sticking, grazing) the orbit stands on its
+                        # confirmation, as it did before, with no multiplier.
+                        if any(_max_diff(u, xs) <= 1e-6 * scale for u in self.unstable):
+                            return None  # found unstable already, from another candidate p
+                        orb = measured[0][:q]
+                        lam = self._monodromy_radius(
+                            xs,
+                            q,
+                            measured[1][q - 1],
+                            orb[:, ms.M_IMP1].sum() + orb[:, ms.M_IMP2].sum(),
+                        )
+                        if lam is not None and lam >= 1.0:
+                            self.unstable.append(xs.copy())
+                            return None
+                        return _Orbit(xs.copy(), measured[0], q, lam)
                     return None
                 if r > 0.5 * r_prev:
                     return None  # the cycles stopped converging
