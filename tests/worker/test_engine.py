@@ -225,6 +225,21 @@ def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
     assert 0.0 < r.floquet_multiplier < 1.0
 
 
+def test_an_orbit_where_the_map_jumps_stands_on_its_confirmation():
+    # θ 1, σ 0.1, gap 0.1, γ_r 5.312 (work-precision spectrum C): the differences of the
+    # period map at this orbit grow like 1/step (1.4e4 at 1e-7 of the state, 1.4e3 at 1e-6): a
+    # jump, not a multiplier. The orbit is accepted as extrapolated, with no multiplier, and is
+    # the one plain integration reaches (rejected as unstable, it took 483 periods).
+    p = CellParams(theta=1.0, sigma=0.1, coupling="paper", gamma_s=1.0, gamma_r=5.311864,
+                   xi=0.05, g1=0.1, g2=0.1)  # fmt: skip
+    r = simulate_point(p)
+    plain = simulate_point(p, SolverSettings(extrapolate=False))
+    assert r.outcome == plain.outcome == "periodic" and r.response_period == 1
+    assert r.floquet_multiplier is None
+    assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
+    assert r.periods < plain.periods
+
+
 def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts():
     # Figure 5's cell at θ 0.1, gap 0.7, γ_r 1.16: solver version 7 reported 0.489, the largest
     # Ritz value of the extrapolation, which the sequence's slowest mode hardly entered

@@ -557,12 +557,23 @@ class _Engine:
         """The dominant Floquet multiplier's modulus of the p-periodic orbit through ``x0``
         (``fx0``: the state p periods after it): the spectral radius of the monodromy matrix,
         the p-period map's Jacobian, by forward differences of ``nx`` unmeasured side runs
-        (the caller saves/restores the run). None where a perturbed run has other impacts than
-        the orbit (``impacts`` over p periods): the map is not smooth there (grazing)."""
-        scale = float(np.max(np.abs(x0)))
+        (the caller saves/restores the run). None where the map is not smooth at ``x0``: a
+        perturbed run has other impacts than the orbit (``impacts`` over p periods), or a
+        radius of 1 or more is not reproduced with ten times the step (a jump of the map, a
+        sticking or grazing contact, makes the differences grow like 1/step)."""
+        lam = self._fd_radius(x0, p, fx0, impacts, FD_STEP)
+        if lam is None or lam < 1.0:
+            return lam
+        again = self._fd_radius(x0, p, fx0, impacts, 10.0 * FD_STEP)
+        if again is None or abs(again - lam) > 0.01 * lam:
+            return None
+        return lam
+
+    def _fd_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray, impacts: float,
+                   step: float) -> float | None:  # fmt: skip
+        h = step * float(np.max(np.abs(x0)))
         J = np.empty((self.nx, self.nx))
         for i in range(self.nx):
-            h = FD_STEP * scale
             x = x0.copy()
             x[i] += h
             got = self._side_run(x, p, measure=False)
