@@ -102,3 +102,42 @@ def test_short_batches_give_the_same_numbers_to_the_bit(monkeypatch, method):
     for k in ref:
         ref[k].pop("wall_s"), short[k].pop("wall_s")
         assert short[k] == ref[k]
+
+
+def _steps_at_monodromy(monkeypatch) -> list[int]:
+    """Record the point's steps each time the monodromy check of an orbit starts."""
+    seen: list[int] = []
+    inner = engine._Engine._fd_radius
+
+    def fd_radius(self, *args):
+        seen.append(self.work["steps"])
+        return inner(self, *args)
+
+    monkeypatch.setattr(engine._Engine, "_fd_radius", fd_radius)
+    return seen
+
+
+def test_limits_hold_during_the_monodromy_check(monkeypatch):
+    # The check of an extrapolated orbit integrates nx side runs (42 for 20 modes) before the
+    # point can end: a step budget that runs out among them fails the point with the reason
+    seen = _steps_at_monodromy(monkeypatch)
+    free = simulate_point(CellParams(**PERIODIC))
+    assert free.outcome == "periodic" and len(seen) == 1
+    budget = seen[0] + 1  # over after the first side run of the check
+    r = simulate_point(CellParams(**PERIODIC), limits=PointLimits(steps=budget))
+    assert r.outcome == "failed" and "step budget" in r.reason
+    assert r.steps < free.steps
+
+
+def test_cancel_is_seen_during_the_monodromy_check(monkeypatch):
+    seen = _steps_at_monodromy(monkeypatch)
+    polls_in_check: list[int] = []
+
+    def cancelled() -> bool:
+        if seen:  # the check has started
+            polls_in_check.append(1)
+        return len(polls_in_check) >= 2
+
+    with pytest.raises(PointCancelled):
+        simulate_point(CellParams(**PERIODIC), cancelled=cancelled)
+    assert len(polls_in_check) == 2

@@ -560,7 +560,8 @@ class _Engine:
         (the caller saves/restores the run). None where the map is not smooth at ``x0``: a
         perturbed run has other impacts than the orbit (``impacts`` over p periods), or a
         radius of 1 or more is not reproduced with ten times the step (a jump of the map, a
-        sticking or grazing contact, makes the differences grow like 1/step)."""
+        sticking or grazing contact, makes the differences grow like 1/step); inf when the
+        point's limits ran out meanwhile (it then fails with that reason)."""
         lam = self._fd_radius(x0, p, fx0, impacts, FD_STEP)
         if lam is None or lam < 1.0:
             return lam
@@ -574,6 +575,11 @@ class _Engine:
         h = step * float(np.max(np.abs(x0)))
         J = np.empty((self.nx, self.nx))
         for i in range(self.nx):
+            # nx·p periods can be long (20 modes: 42 side runs): the point's limits and cancel
+            # are seen between them; inf rejects the orbit, and the main loop then fails the
+            # point with the reason
+            if self._over_budget():
+                return math.inf
             x = x0.copy()
             x[i] += h
             got = self._side_run(x, p, measure=False)
