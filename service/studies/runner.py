@@ -139,11 +139,11 @@ def _worker_environ() -> None:
 
 def _no_worker_profiler() -> None:
     """Start embedded workers without dask's statistical profiler (unless
-    ``$DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED`` asks for it): a thread in every worker that
-    samples every thread's stack each 10 ms, for the dashboard's profile page. On Figure 5
-    (``benchmarks/run_command.py``, 5 interleaved pairs) it cost the two workers 1.1 s of CPU
-    (7.3 s outside their task threads with it, 6.2 s without), on a machine whose two cores are
-    the bound."""
+    ``$DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED`` asks for it): a callback on every worker's
+    event loop that samples its threads' stacks each 10 ms, for the dashboard's profile page.
+    On Figure 5 (``benchmarks/run_command.py``, 5 interleaved pairs) it cost the two workers
+    1.1 s of CPU (7.3 s outside their task threads with it, 6.2 s without), on a machine whose
+    two cores are the bound."""
     import dask
 
     if _PROFILE_ENV not in os.environ:
