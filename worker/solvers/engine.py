@@ -304,6 +304,11 @@ def _push_recent(recent: np.ndarray, imp: np.ndarray, reg: np.ndarray, rows: np.
         reg[size - k + i] = rows[src, ms.M_REGIME]
 
 
+def _impacts(rows: np.ndarray) -> float:
+    """Impacts on both stops over the periods of ``rows`` (whole numbers: sums are exact)."""
+    return float(rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum())
+
+
 @njit(cache=True, nogil=True)
 def _max_diff(a: np.ndarray, b: np.ndarray) -> float:
     """max |a - b| (exact: no rounding but the differences')."""
@@ -563,7 +568,7 @@ class _Engine:
         sticking or grazing contact, makes the differences grow like 1/step); inf when the
         point's limits ran out meanwhile (it then fails with that reason)."""
         lam = self._fd_radius(x0, p, fx0, impacts, FD_STEP)
-        if lam is None or lam < 1.0:
+        if lam is None or lam < 1.0 or math.isinf(lam):
             return lam
         again = self._fd_radius(x0, p, fx0, impacts, 10.0 * FD_STEP)
         if again is None or abs(again - lam) > 0.01 * lam:
@@ -572,6 +577,7 @@ class _Engine:
 
     def _fd_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray, impacts: float,
                    step: float) -> float | None:  # fmt: skip
+        """:meth:`_monodromy_radius` with one relative ``step``, without the jump test."""
         h = step * float(np.max(np.abs(x0)))
         J = np.empty((self.nx, self.nx))
         for i in range(self.nx):
@@ -586,11 +592,17 @@ class _Engine:
             if got is None:
                 return None
             rows, samples = got
-            if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() != impacts:
+            if _impacts(rows) != impacts:
                 return None
             J[:, i] = (samples[-1] - fx0) / h
         ev = np.linalg.eigvals(J)
         return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
+
+    def _found_unstable(self, x: np.ndarray, rel: float) -> bool:
+        """Whether ``x`` is within ``rel`` of its size of an orbit already rejected as
+        unstable."""
+        near = rel * float(np.max(np.abs(x)))
+        return any(_max_diff(u, x) <= near for u in self.unstable)
 
     def _extrapolate(self, p: int) -> _Orbit | None:
         """Extrapolate the p-periodic limit of the sequence, then confirm it by integration."""
@@ -615,9 +627,7 @@ class _Engine:
         if fit is None or fit[2] > MAX_FIT or fit[1] >= 0.999:
             return None  # the sequence is not (yet) a linear contraction: no side runs
         rho0 = fit[1]
-        x_near = fit[0]
-        near = 1e-3 * float(np.max(np.abs(x_near)))
-        if any(_max_diff(u, x_near) <= near for u in self.unstable):
+        if self._found_unstable(fit[0], 1e-3):
             return None  # an orbit already found unstable (any candidate p): no side runs
         snap = self.run.save()
         try:
@@ -636,7 +646,7 @@ class _Engine:
                 rows, samples = got
                 scale = float(np.max(np.abs(xs)))
                 r = _max_diff(samples[-1], xs)
-                if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() != blocks[0]:
+                if _impacts(rows) != blocks[0]:
                     return None  # another branch of the map: not the orbit being approached
                 if r <= self.s.periodicity_tol * scale * (1.0 - rho):
                     e = _max_diff(X[-1], xs)
@@ -654,16 +664,12 @@ class _Engine:
                         # orbit past its period doubling), and the Ritz values of a short
                         # sequence miss the slowest mode (0.41 where the map has 0.64) or
                         # add spurious ones (above 1 where it has 0.55). Where the map is not
-                        # smooth (None: zero gaps, sticking, grazing) the orbit stands on its
-                        # confirmation, as it did before, with no multiplier.
-                        if any(_max_diff(u, xs) <= 1e-6 * scale for u in self.unstable):
+                        # smooth (None: zero gaps, sticking, grazing, jumps) the orbit stands on
+                        # its confirmation, as it did before, with no multiplier.
+                        if self._found_unstable(xs, 1e-6):
                             return None  # found unstable already, from another candidate p
-                        orb = measured[0][:q]
                         lam = self._monodromy_radius(
-                            xs,
-                            q,
-                            measured[1][q - 1],
-                            orb[:, ms.M_IMP1].sum() + orb[:, ms.M_IMP2].sum(),
+                            xs, q, measured[1][q - 1], _impacts(measured[0][:q])
                         )
                         if lam is not None and lam >= 1.0:
                             self.unstable.append(xs.copy())
@@ -686,7 +692,7 @@ class _Engine:
 
     def _classify_orbit(self, orbit: _Orbit) -> tuple[str, object]:
         rows = orbit.rows
-        if rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum() == 0 and self._proves(orbit.x0):
+        if _impacts(rows) == 0 and self._proves(orbit.x0):
             return self._linear_or_undamped()
         return "periodic", orbit
 
