@@ -15,8 +15,11 @@ is proven:
     ``periodicity_tol`` (allowing for the estimated contraction), have the same impacts per
     period as the trajectory, and lie where the trajectory's own contraction is heading, so
     only an orbit reached from the point's start is reported. A sequence that repeats by
-    itself (``measure.periodicity``) needs no extrapolation. The orbit is then measured over p
-    periods; the dominant Floquet multiplier is estimated from the sequence.
+    itself (``measure.periodicity``) needs no extrapolation. An extrapolated orbit must also
+    attract: its monodromy matrix (finite differences) has a spectral radius below 1, the
+    reported Floquet multiplier; where the map is not smooth (no Jacobian) the orbit is
+    reported only once the trajectory has reached it. The orbit is then measured over p
+    periods; for an orbit reached by itself the multiplier is the sequence's contraction.
 ``irregular``
     Window statistics: Γ over each window of ``window`` periods; the initial transient is cut
     by the MSER rule; the point ends when the standard error of the mean Γ (batch means with an
@@ -90,6 +93,11 @@ MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
 # windows its statistics can use: the last MIN_WINDOWS before the earliest irregular claim on.
 # Orbits are always measured (their own side run).
 FD_STEP = 1e-7  # relative state perturbation of the monodromy matrix's finite differences
+# Periods per batch while an orbit waits for the trajectory (_reached): it is seen within
+# this many periods of being reached (a batch costs ~10 µs more than its periods)
+PENDING_BATCH = 4
+# ... or once it is this many times closer to the orbit than when the orbit was confirmed
+REACH_SHRINK = 100.0
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
@@ -398,6 +406,12 @@ class _Orbit:
     multiplier: float | None
 
 
+@dataclass
+class _Pending:
+    orbit: _Orbit  # confirmed, but its attraction not proven (the map is not smooth there)
+    found_at: float  # the trajectory's distance to it when it was confirmed
+
+
 class _Engine:
     def __init__(self, run: KernelRun, sys_: System, tail: LinearTail,
                  settings: SolverSettings, limits: PointLimits,
@@ -430,7 +444,12 @@ class _Engine:
         ) if settings.early_stop else 0  # fmt: skip
         self.quiet_backoff = 1
         self.backoff = 4
-        self.unstable: list[np.ndarray] = []  # x* of the orbits found unstable
+        # The stroboscopic states (q, nx) of every orbit checked for attraction: found
+        # unstable, or pending. Not tried again: a later fit may land on any of its q states.
+        self.tried: list[np.ndarray] = []
+        # Orbits confirmed where the map is not smooth (no Jacobian, so attraction is not
+        # proven): reported only once the trajectory itself reaches one (_reached)
+        self.pending: list[_Pending] = []
 
     # ------------------------------------------------------------------ bookkeeping
 
@@ -473,12 +492,21 @@ class _Engine:
         measure_from = -(-first // w) * w
         while self.period < s.max_periods:
             n = min(w - self.period % w, s.max_periods - self.period, self.stride)
+            if self.pending:
+                n = min(n, PENDING_BATCH)  # seen soon after the trajectory reaches it
             measure = self.period >= measure_from
             t = time.perf_counter()
             done, code, p = self.run.advance(n, measure, self.checks, self.rows, self.samples)
             self._pace(done, time.perf_counter() - t)
             self.rows[:done, ms.M_MEASURED] = 1.0 if measure else 0.0
             self._absorb(self.rows[:done], self.samples[:done], main=True)
+            reached = self._reached(1.0) if self.pending else None
+            if reached is None and code == ms.END_PERIODIC and self.pending:
+                # the trajectory repeats by itself: if that is a pending orbit, its extrapolated
+                # start is the more accurate one (10×: the slack of the divisor test)
+                reached = self._reached(10.0)
+            if reached is not None:
+                return self._classify_orbit(reached)
             if code == ms.END_LINEAR:
                 return self._linear_or_undamped()
             if code == ms.END_QUIET:
@@ -598,11 +626,35 @@ class _Engine:
         ev = np.linalg.eigvals(J)
         return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
 
-    def _found_unstable(self, x: np.ndarray, rel: float) -> bool:
-        """Whether ``x`` is within ``rel`` of its size of an orbit already rejected as
-        unstable."""
+    def _tried(self, x: np.ndarray, rel: float) -> bool:
+        """Whether ``x`` is within ``rel`` of its size of a state of an orbit already checked
+        (rejected as unstable, or waiting for the trajectory to reach it)."""
         near = rel * float(np.max(np.abs(x)))
-        return any(_max_diff(u, x) <= near for u in self.unstable)
+        return any(_max_diff(u, x) <= near for pts in self.tried for u in pts)
+
+    def _distance(self, o: _Orbit) -> float:
+        """How far the trajectory is from orbit ``o``: the nearest of its last q samples to
+        ``o``'s start (inf before it has q samples)."""
+        if self.nrecent < o.p:
+            return math.inf
+        return min(_max_diff(x, o.x0) for x in self.recent[RECENT - o.p :])
+
+    def _reached(self, slack: float) -> _Orbit | None:
+        """A pending orbit the trajectory has reached: it is on the orbit to
+        ``slack·periodicity_tol`` (1: what a sequence that repeats by itself must show), or
+        ``REACH_SHRINK`` times closer than when the orbit was confirmed (the trajectory is
+        attracted to it). It has no multiplier: there is no Jacobian."""
+        for pend in self.pending:
+            o = pend.orbit
+            near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
+            if self._distance(o) <= max(near, pend.found_at / REACH_SHRINK):
+                return o
+        return None
+
+    def _approaching(self) -> bool:
+        """Whether the trajectory is closer to a pending orbit than when it was confirmed: a
+        response on its way to an orbit is not irregular."""
+        return any(self._distance(pd.orbit) < pd.found_at for pd in self.pending)
 
     def _extrapolate(self, p: int) -> _Orbit | None:
         """Extrapolate the p-periodic limit of the sequence, then confirm it by integration."""
@@ -627,8 +679,8 @@ class _Engine:
         if fit is None or fit[2] > MAX_FIT or fit[1] >= 0.999:
             return None  # the sequence is not (yet) a linear contraction: no side runs
         rho0 = fit[1]
-        if self._found_unstable(fit[0], 1e-3):
-            return None  # an orbit already found unstable (any candidate p): no side runs
+        if self._tried(fit[0], 1e-3):
+            return None  # an orbit already checked (any candidate p): no side runs
         snap = self.run.save()
         try:
             r_prev = math.inf
@@ -664,17 +716,23 @@ class _Engine:
                         # orbit past its period doubling), and the Ritz values of a short
                         # sequence miss the slowest mode (0.41 where the map has 0.64) or
                         # add spurious ones (above 1 where it has 0.55). Where the map is not
-                        # smooth (None: zero gaps, sticking, grazing, jumps) the orbit stands on
-                        # its confirmation, as it did before, with no multiplier.
-                        if self._found_unstable(xs, 1e-6):
-                            return None  # found unstable already, from another candidate p
+                        # smooth (None: zero gaps, sticking, grazing, jumps) attraction is not
+                        # proven: the orbit waits until the trajectory reaches it (solver
+                        # version 9; up to 8 it stood on its confirmation alone).
+                        if self._tried(xs, 1e-6):
+                            return None  # checked already, from another candidate p
                         lam = self._monodromy_radius(
                             xs, q, measured[1][q - 1], _impacts(measured[0][:q])
                         )
+                        if lam is None or lam >= 1.0:
+                            self.tried.append(measured[1][:q].copy())
                         if lam is not None and lam >= 1.0:
-                            self.unstable.append(xs.copy())
                             return None
-                        return _Orbit(xs.copy(), measured[0], q, lam)
+                        orbit = _Orbit(xs.copy(), measured[0], q, lam)
+                        if lam is None:
+                            self.pending.append(_Pending(orbit, self._distance(orbit)))
+                            return None
+                        return orbit
                     return None
                 if r > 0.5 * r_prev:
                     return None  # the cycles stopped converging
@@ -712,7 +770,8 @@ class _Engine:
         win = self.windows
         mean, se, d, trend = mser_stats(np.array(win.gamma))
         return (se is not None and len(win) - d >= MIN_WINDOWS and se <= self.s.stat_tol_db
-                and trend <= MAX_TREND and self._converging() == 0)  # fmt: skip
+                and trend <= MAX_TREND and self._converging() == 0
+                and not self._approaching())  # fmt: skip
 
     def _converging(self) -> int:
         """The smallest p whose p-spaced differences of the stroboscopic samples have shrunk a
@@ -769,6 +828,11 @@ class _Engine:
     def _unsettled_reason(self) -> str:
         win = self.windows
         what = f"the budget of {self.s.max_periods} periods ran out"
+        if self.pending:
+            q = self.pending[0].orbit.p
+            return what + (f" before the trajectory reached the period-{q} orbit extrapolated "
+                           "from it, which is reported only once reached: the period map is not "
+                           "smooth there, so its attraction is not proven")  # fmt: skip
         if not len(win):
             return what + " before a whole window was measured"
         if sum(win.impacts[-1]) == 0:
