@@ -262,23 +262,44 @@ def test_an_orbit_not_proven_to_attract_is_not_reported_before_the_trajectory_re
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
 
 
+def attraction_rate(p: CellParams, x: np.ndarray) -> float:
+    """How fast a start 1e-4 off the orbit through ``x`` approaches it, per period: step two
+    periods at a time and fit the distance's decay (a complex pair of multipliers makes it
+    oscillate as it decays) while it is above 1e-8 (``x`` itself is on the orbit only to
+    ``periodicity_tol``, 1e-9, where the distance stops decaying)."""
+    scale = np.max(np.abs(x))
+    y = x + 1e-4 * scale * np.random.default_rng(0).standard_normal(x.size)
+    two = SolverSettings(early_stop=False, max_periods=2, window=1)
+    dist = []
+    for _ in range(25):
+        y = np.asarray(simulate_point(p, two, initial_state=y).final_state)
+        dist.append(np.max(np.abs(y - x)))
+    k = np.arange(len(dist))
+    use = (k >= 2) & (np.array(dist) > 1e-8 * scale)
+    assert use.sum() >= 5  # enough of the decay to fit
+    slope = np.polyfit(k[use], np.log(np.array(dist)[use]), 1)[0]
+    return math.exp(slope / 2.0)
+
+
 def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts():
     # Figure 5's cell at θ 0.1, gap 0.7, γ_r 1.16: solver version 7 reported 0.489, the largest
     # Ritz value of the extrapolation, which the sequence's slowest mode hardly entered
     p = cell(gamma_r=1.16, theta=0.1, g1=0.7, g2=0.7)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 1
-    # independently: start near the orbit, step two periods at a time, and fit how fast the
-    # distance to the orbit shrinks (a complex pair of multipliers: it oscillates as it decays)
-    x = np.asarray(r.final_state)
-    y = x + 1e-4 * np.max(np.abs(x)) * np.random.default_rng(0).standard_normal(x.size)
-    two = SolverSettings(early_stop=False, max_periods=2, window=1)
-    dist = []
-    for _ in range(25):
-        y = np.asarray(simulate_point(p, two, initial_state=y).final_state)
-        dist.append(np.max(np.abs(y - x)))
-    slope = np.polyfit(np.arange(4, 25), np.log(dist[4:]), 1)[0]
-    assert r.floquet_multiplier == pytest.approx(math.exp(slope / 2.0), abs=0.01)
+    assert r.floquet_multiplier == pytest.approx(attraction_rate(p, np.asarray(r.final_state)),
+                                                 abs=0.01)  # fmt: skip
+
+
+def test_an_orbit_reached_by_itself_reports_its_monodromy_radius_too():
+    # Figure 5's cell at θ 0.3, gap 0.3, γ_r 0.86: the trajectory's own samples repeat (no
+    # extrapolation); solver version 9 at first reported their contraction d_k/d_(k-1), 0.597,
+    # where the orbit attracts at 0.72
+    p = cell(gamma_r=0.86, theta=0.3, g1=0.3, g2=0.3)
+    r = simulate_point(p)
+    assert r.outcome == "periodic" and r.response_period == 1
+    assert r.floquet_multiplier == pytest.approx(attraction_rate(p, np.asarray(r.final_state)),
+                                                 abs=0.01)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- irregular
