@@ -13,8 +13,15 @@ import math
 
 import numpy as np
 import pytest
+import scipy.linalg
 
-from worker.model import CellParams, assemble, linear_transmittance_db, pinned_transmittance_db
+from worker.model import (
+    CellParams,
+    assemble,
+    linear_transmittance_db,
+    pinned_max_re,
+    pinned_transmittance_db,
+)
 from worker.simulate import SolverSettings, simulate_chunk, simulate_point
 
 METHODS = ("event", "exponential", "euler")
@@ -67,6 +74,34 @@ def test_zero_gaps_give_the_pinned_linear_response(method, kw):
     r = integrate(p, method)
     assert r.outcome == "periodic" and r.response_period == 1
     assert r.transmittance_db == pytest.approx(pinned_transmittance_db(p), abs=PINNED_TOL[method])
+
+
+@pytest.mark.parametrize("kw", POINTS + [dict(gamma_r=0.85, sigma=1e-4, coupling="paper", xi=0.05)],
+                         ids=lambda kw: f"{kw['coupling']}-{kw['gamma_r']}")  # fmt: skip
+def test_zero_gaps_report_the_constrained_systems_exact_multiplier(kw):
+    # independently of pinned_max_re's null-space reduction: the finite eigenvalues of the
+    # constrained system as a matrix pencil in (u, u̇, μ), M ü + C u̇ + K u = X μ, Wᵀu = 0
+    p = cell(**kw, g1=0.0, g2=0.0)
+    sys_ = assemble(p)
+    n = sys_.ndof
+    A = np.zeros((2 * n + 1, 2 * n + 1))
+    B = np.zeros_like(A)
+    A[:n, n : 2 * n] = np.eye(n)
+    A[n : 2 * n, :n] = -sys_.K
+    A[n : 2 * n, n : 2 * n] = -sys_.C
+    A[n : 2 * n, 2 * n] = sys_.X
+    A[2 * n, :n] = sys_.W
+    B[:n, :n] = np.eye(n)
+    B[n : 2 * n, n : 2 * n] = sys_.M
+    lam = scipy.linalg.eigvals(A, B)
+    finite = lam[np.isfinite(lam) & (np.abs(lam) < 1e8)]
+    assert len(finite) == 2 * (n - 1)  # the pinned cell has one degree of freedom fewer
+    assert pinned_max_re(sys_) == pytest.approx(float(np.max(finite.real)), rel=1e-6)
+    r = simulate_point(p)
+    T = 2.0 * math.pi / p.gamma_r
+    assert r.outcome == "periodic" and r.response_period == 1
+    assert r.floquet_multiplier == pytest.approx(math.exp(T * np.max(finite.real)), rel=1e-6)
+    assert r.transmittance_db == pytest.approx(pinned_transmittance_db(p), abs=1e-6)
 
 
 # Extreme parameters (the stress sweep's corners): huge gaps (linear) and zero gaps (pinned), at

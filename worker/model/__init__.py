@@ -5,6 +5,7 @@ from worker.model.params import COUPLINGS, MAX_MODES, CellParams
 from worker.model.references import (
     SteadyState,
     linear_transmittance_db,
+    pinned_max_re,
     pinned_transmittance_db,
     steady_state,
 )
@@ -21,6 +22,7 @@ __all__ = [
     "linear_transmittance_db",
     "mode_means",
     "mode_shape",
+    "pinned_max_re",
     "pinned_transmittance_db",
     "rayleigh_constants",
     "steady_state",

@@ -10,7 +10,13 @@ import numpy as np
 from worker.model.params import CellParams
 from worker.model.system import System, assemble
 
-__all__ = ["SteadyState", "linear_transmittance_db", "pinned_transmittance_db", "steady_state"]
+__all__ = [
+    "SteadyState",
+    "linear_transmittance_db",
+    "pinned_max_re",
+    "pinned_transmittance_db",
+    "steady_state",
+]
 
 
 @dataclass(frozen=True)
@@ -92,16 +98,33 @@ def pinned_transmittance_db(p: CellParams) -> float:
     """
     sys_ = assemble(p)
     g = p.gamma_r
-    # Null space of Wᵀ (1 × N), orthonormal.
-    _, _, vt = np.linalg.svd(sys_.W[None, :])
-    Z = vt[1:].T
-    # Constraint force direction X must be eliminated with the same test space when M, X
-    # are not symmetric: project with a left null space of Xᵀ.
-    _, _, vtx = np.linalg.svd(sys_.X[None, :])
-    Y = vtx[1:].T
+    Z, Y = _pinned_bases(sys_)
     H = Y.T @ (sys_.K - g * g * sys_.M + 1j * g * sys_.C) @ Z
     e_s = np.zeros(sys_.ndof)
     e_s[-1] = 1.0
     v = np.linalg.solve(H, Y.T @ e_s)
     s_amp = abs((Z @ v)[-1]) * abs(1.0 / p.gamma_s + 2j * p.xi * g)
     return 20.0 * math.log10(s_amp / p.base_scale)
+
+
+def _pinned_bases(sys_: System) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases ``Z`` of the null space of Wᵀ (``u = Z v`` keeps the tip pinned) and
+    ``Y`` of that of Xᵀ (the test space that eliminates the contact force, needed where M and
+    X are not symmetric)."""
+    _, _, vt = np.linalg.svd(sys_.W[None, :])
+    _, _, vtx = np.linalg.svd(sys_.X[None, :])
+    return vt[1:].T, vtx[1:].T
+
+
+def pinned_max_re(sys_: System) -> float:
+    """Largest Re λ of the pinned cell's free motion, ``Yᵀ(M Z v̈ + C Z v̇ + K Z v) = 0``: below 0,
+    every motion with the tip pinned decays to the pinned steady state (whose Γ is
+    :func:`pinned_transmittance_db`)."""
+    Z, Y = _pinned_bases(sys_)
+    Mr = Y.T @ sys_.M @ Z
+    n = Mr.shape[0]
+    A = np.zeros((2 * n, 2 * n))
+    A[:n, n:] = np.eye(n)
+    A[n:, :n] = -np.linalg.solve(Mr, Y.T @ sys_.K @ Z)
+    A[n:, n:] = -np.linalg.solve(Mr, Y.T @ sys_.C @ Z)
+    return float(np.max(np.linalg.eigvals(A).real))

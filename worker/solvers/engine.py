@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from worker.model import SteadyState, System
+from worker.model import SteadyState, System, pinned_max_re
 from worker.numba_cache import on_disk
 from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittance_db
 from worker.solvers import measure as ms
@@ -94,11 +94,14 @@ MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
 # windows its statistics can use: the last MIN_WINDOWS before the earliest irregular claim on.
 # Orbits are always measured (their own side run).
 FD_STEP = 1e-7  # relative state perturbation of the monodromy matrix's finite differences
-# Periods per batch while an orbit waits for the trajectory (_reached): it is seen within
-# this many periods of being reached (a batch costs ~10 µs more than its periods)
+# Periods per batch while the trajectory approaches an orbit waiting for it (_reached): it is
+# seen within this many periods of being reached (a batch costs ~10 µs more than its periods)
 PENDING_BATCH = 4
-# ... or once it is this many times closer to the orbit than when the orbit was confirmed
+# ... or once it is this many times closer to the orbit than when the orbit was confirmed,
+# and within REACH_REL of the state's size (a chaotic trajectory passes near unstable orbits:
+# one found 1.0 away was within 1/100 of that by chance)
 REACH_SHRINK = 100.0
+REACH_REL = 1e-6
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
@@ -451,6 +454,8 @@ class _Engine:
         # Orbits confirmed where the map is not smooth (no Jacobian, so attraction is not
         # proven): reported only once the trajectory itself reaches one (_reached)
         self.pending: list[_Pending] = []
+        # Both gaps zero: the tip is pinned for good and the motion is linear (constrained)
+        self.pinned_re = pinned_max_re(sys_) if self.p.g1 == 0.0 and self.p.g2 == 0.0 else None
 
     # ------------------------------------------------------------------ bookkeeping
 
@@ -493,7 +498,7 @@ class _Engine:
         measure_from = -(-first // w) * w
         while self.period < s.max_periods:
             n = min(w - self.period % w, s.max_periods - self.period, self.stride)
-            if self.pending:
+            if self.pending and self._approaching():
                 n = min(n, PENDING_BATCH)  # seen soon after the trajectory reaches it
             measure = self.period >= measure_from
             t = time.perf_counter()
@@ -595,6 +600,8 @@ class _Engine:
                 lam = self._monodromy_radius(x0, p, got[1][p - 1], _impacts(got[0]))
                 if lam is not None and math.isinf(lam):
                     return None  # over the point's limits: the main loop fails it
+            if lam is None:
+                lam = self._pinned_multiplier(p)
             return _Orbit(x0.copy(), got[0], p, rho if lam is None else lam)
         finally:
             self.run.restore(snap)
@@ -646,6 +653,16 @@ class _Engine:
         near = rel * float(np.max(np.abs(x)))
         return any(_max_diff(u, x) <= near for pts in self.tried for u in pts)
 
+    def _pinned_multiplier(self, q: int) -> float | None:
+        """Both gaps zero: the admissible set is ``Wᵀu = 0``, so the tip stays pinned, the
+        motion is the constrained linear system's, and when that is damped its one periodic
+        response attracts every state, with multiplier ``e^{q·T·max Re λ}`` over q periods
+        (the finite differences cannot show it: a perturbed tip leaves the stops). None
+        otherwise."""
+        if self.pinned_re is None or self.pinned_re >= 0.0:
+            return None
+        return math.exp(q * 2.0 * math.pi / self.p.gamma_r * self.pinned_re)
+
     def _distance(self, o: _Orbit) -> float:
         """How far the trajectory is from orbit ``o``: the nearest of its last q samples to
         ``o``'s start (inf before it has q samples)."""
@@ -660,8 +677,10 @@ class _Engine:
         attracted to it). It has no multiplier: there is no Jacobian."""
         for pend in self.pending:
             o = pend.orbit
-            near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
-            if self._distance(o) <= max(near, pend.found_at / REACH_SHRINK):
+            scale = float(np.max(np.abs(o.x0)))
+            near = slack * self.s.periodicity_tol * scale
+            closer = min(pend.found_at / REACH_SHRINK, REACH_REL * scale)
+            if self._distance(o) <= max(near, closer):
                 return o
         return None
 
@@ -738,6 +757,8 @@ class _Engine:
                         lam = self._monodromy_radius(
                             xs, q, measured[1][q - 1], _impacts(measured[0][:q])
                         )
+                        if lam is None:
+                            lam = self._pinned_multiplier(q)
                         if lam is None or lam >= 1.0:
                             self.tried.append(measured[1][:q].copy())
                         if lam is not None and lam >= 1.0:
