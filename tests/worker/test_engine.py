@@ -230,8 +230,8 @@ def test_an_orbit_where_the_map_jumps_is_reported_once_the_trajectory_reaches_it
     # period map at this orbit grow like 1/step (1.4e4 at 1e-7 of the state, 1.4e3 at 1e-6): a
     # jump, not a multiplier, so the orbit's attraction is not proven. Solver version 8
     # reported it as soon as it was extrapolated (period 100, the trajectory still 1e-3 away);
-    # now it waits until the trajectory is a hundred times closer and within 1e-6 of the
-    # state's size, and reports the extrapolated start.
+    # now it waits until the trajectory has been a hundred times closer at three returns in a
+    # row, and reports the extrapolated start.
     p = CellParams(theta=1.0, sigma=0.1, coupling="paper", gamma_s=1.0, gamma_r=5.311864,
                    xi=0.05, g1=0.1, g2=0.1)  # fmt: skip
     r = simulate_point(p)
@@ -249,7 +249,7 @@ def test_an_orbit_where_the_map_jumps_is_reported_once_the_trajectory_reaches_it
 def test_an_orbit_not_proven_to_attract_is_not_reported_before_the_trajectory_reaches_it():
     # Figure 5's cell at θ 0.5, gap 1.0, γ_r 1.68: a period-3 orbit, extrapolated at period 64,
     # where a perturbed run has other impacts (no Jacobian); the trajectory, then 5e-5 away, is
-    # within 1e-6 of it at period 100. Solver version 8 reported it at period 64.
+    # on it by period ~100. Solver version 8 reported it at period 64.
     p = cell(gamma_r=1.68, theta=0.5, g1=1.0, g2=1.0)
     short = simulate_point(p, SolverSettings(max_periods=80))
     assert short.outcome == "unsettled"
@@ -293,7 +293,7 @@ def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts():
 
 def test_an_orbit_reached_by_itself_reports_its_monodromy_radius_too():
     # Figure 5's cell at θ 0.3, gap 0.3, γ_r 0.86: the trajectory's own samples repeat (no
-    # extrapolation); solver version 9 at first reported their contraction d_k/d_(k-1), 0.597,
+    # extrapolation); solver version 8 reported their contraction d_k/d_(k-1), 0.597,
     # where the orbit attracts at 0.72
     p = cell(gamma_r=0.86, theta=0.3, g1=0.3, g2=0.3)
     r = simulate_point(p)

@@ -97,11 +97,10 @@ FD_STEP = 1e-7  # relative state perturbation of the monodromy matrix's finite d
 # Periods per batch while the trajectory approaches an orbit waiting for it (_reached): it is
 # seen within this many periods of being reached (a batch costs ~10 µs more than its periods)
 PENDING_BATCH = 4
-# ... or once it is this many times closer to the orbit than when the orbit was confirmed,
-# and within REACH_REL of the state's size (a chaotic trajectory passes near unstable orbits:
-# one found 1.0 away was within 1/100 of that by chance)
+# ... or once it has been this many times closer to the orbit than when the orbit was
+# confirmed at REACH_HOLD returns in a row (a chaotic trajectory may pass near an orbit once)
 REACH_SHRINK = 100.0
-REACH_REL = 1e-6
+REACH_HOLD = 3
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
@@ -670,17 +669,30 @@ class _Engine:
             return math.inf
         return min(_max_diff(x, o.x0) for x in self.recent[RECENT - o.p :])
 
+    def _returns(self, o: _Orbit, k: int) -> list[float]:
+        """The trajectory's distance to orbit ``o`` at its last k returns, newest first: the
+        one of its last q samples nearest ``o``'s start, and the samples q, 2q, … before it
+        (empty before it has k·q samples)."""
+        q = o.p
+        if self.nrecent < k * q:
+            return []
+        last = [_max_diff(x, o.x0) for x in self.recent[RECENT - q :]]
+        j = RECENT - q + int(np.argmin(last))
+        return [_max_diff(self.recent[j - i * q], o.x0) for i in range(k)]
+
     def _reached(self, slack: float) -> _Orbit | None:
         """A pending orbit the trajectory has reached: it is on the orbit to
         ``slack·periodicity_tol`` (1: what a sequence that repeats by itself must show), or
-        ``REACH_SHRINK`` times closer than when the orbit was confirmed (the trajectory is
-        attracted to it). It has no multiplier: there is no Jacobian."""
+        it has been ``REACH_SHRINK`` times closer than when the orbit was confirmed at its
+        last ``REACH_HOLD`` returns (it is attracted there, not passing by). It has no
+        multiplier: there is no Jacobian."""
         for pend in self.pending:
             o = pend.orbit
-            scale = float(np.max(np.abs(o.x0)))
-            near = slack * self.s.periodicity_tol * scale
-            closer = min(pend.found_at / REACH_SHRINK, REACH_REL * scale)
-            if self._distance(o) <= max(near, closer):
+            near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
+            if self._distance(o) <= near:
+                return o
+            back = self._returns(o, REACH_HOLD)
+            if back and max(back) <= pend.found_at / REACH_SHRINK:
                 return o
         return None
 
@@ -863,8 +875,8 @@ class _Engine:
     def _unsettled_reason(self) -> str:
         win = self.windows
         what = f"the budget of {self.s.max_periods} periods ran out"
-        if self.pending:
-            q = self.pending[0].orbit.p
+        if self._approaching():
+            q = next(pd.orbit.p for pd in self.pending if self._distance(pd.orbit) < pd.found_at)
             return what + (f" before the trajectory reached the period-{q} orbit extrapolated "
                            "from it, which is reported only once reached: the period map is not "
                            "smooth there, so its attraction is not proven")  # fmt: skip
