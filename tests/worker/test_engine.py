@@ -281,21 +281,18 @@ def attraction_rate(p: CellParams, x: np.ndarray) -> float:
     return math.exp(slope / 2.0)
 
 
-def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts():
-    # Figure 5's cell at θ 0.1, gap 0.7, γ_r 1.16: solver version 7 reported 0.489, the largest
-    # Ritz value of the extrapolation, which the sequence's slowest mode hardly entered
-    p = cell(gamma_r=1.16, theta=0.1, g1=0.7, g2=0.7)
-    r = simulate_point(p)
-    assert r.outcome == "periodic" and r.response_period == 1
-    assert r.floquet_multiplier == pytest.approx(attraction_rate(p, np.asarray(r.final_state)),
-                                                 abs=0.01)  # fmt: skip
-
-
-def test_an_orbit_reached_by_itself_reports_its_monodromy_radius_too():
-    # Figure 5's cell at θ 0.3, gap 0.3, γ_r 0.86: the trajectory's own samples repeat (no
-    # extrapolation); solver version 8 reported their contraction d_k/d_(k-1), 0.597,
-    # where the orbit attracts at 0.72
-    p = cell(gamma_r=0.86, theta=0.3, g1=0.3, g2=0.3)
+# Figure 5's cells. θ 0.1, gap 0.7, γ_r 1.16, an extrapolated orbit: solver version 7
+# reported 0.489, the largest Ritz value of the extrapolation, which the sequence's slowest
+# mode hardly entered. θ 0.3, gap 0.3, γ_r 0.86, an orbit the trajectory's own samples reach
+# (no extrapolation): version 8 reported their contraction d_k/d_(k-1), 0.597, where the
+# orbit attracts at 0.72.
+@pytest.mark.parametrize(
+    "kw",
+    [dict(gamma_r=1.16, theta=0.1, g1=0.7, g2=0.7), dict(gamma_r=0.86, theta=0.3, g1=0.3, g2=0.3)],
+    ids=["extrapolated", "reached-by-itself"],
+)
+def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts(kw):
+    p = cell(**kw)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 1
     assert r.floquet_multiplier == pytest.approx(attraction_rate(p, np.asarray(r.final_state)),
