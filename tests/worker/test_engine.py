@@ -160,6 +160,8 @@ def test_extrapolated_orbits_are_the_orbits_a_long_run_reaches(method):
     assert fast.impacts_per_period == long.impacts_per_period == (2.0, 2.0)
     assert fast.periods < plain.periods
     assert 0.0 < fast.floquet_multiplier < 1.0
+    # a fixed budget runs nothing beyond it but the orbit's measurement (no monodromy check)
+    assert long.periods == 600 + long.response_period
 
 
 @pytest.mark.parametrize(("gamma_r", "period"), [(0.7, 2), (0.6, 3), (2.5, 4)])

@@ -585,7 +585,8 @@ class _Engine:
     def _measure_orbit(self, x0: np.ndarray, p: int) -> _Orbit | None:
         """The orbit the trajectory reached by itself (its samples repeat), measured over p
         periods from x0. Its multiplier is the monodromy matrix's spectral radius where the map
-        is smooth and the check at most doubles the point's periods so far; else the
+        is smooth and the check at most doubles the point's periods so far; else (and with
+        early stop off: a fixed budget, as the paper's scheme, runs nothing more) the
         sequence's contraction d_k/d_{k-p}, an estimate (off by up to 0.4 in Figure 5, where the
         approach oscillates or the period is long)."""
         rho = self._sequence_rho(p)
@@ -595,7 +596,7 @@ class _Engine:
             if got is None:
                 return None
             lam = None
-            if self.nx * p <= self.work["periods"]:
+            if self.s.early_stop and self.nx * p <= self.work["periods"]:
                 lam = self._monodromy_radius(x0, p, got[1][p - 1], _impacts(got[0]))
                 if lam is not None and math.isinf(lam):
                     return None  # over the point's limits: the main loop fails it
