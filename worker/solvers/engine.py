@@ -497,7 +497,7 @@ class _Engine:
         measure_from = -(-first // w) * w
         while self.period < s.max_periods:
             n = min(w - self.period % w, s.max_periods - self.period, self.stride)
-            if self.pending and self._approaching():
+            if self.pending and self._approaching() is not None:
                 n = min(n, PENDING_BATCH)  # seen soon after the trajectory reaches it
             measure = self.period >= measure_from
             t = time.perf_counter()
@@ -664,11 +664,10 @@ class _Engine:
         return math.exp(q * 2.0 * math.pi / self.p.gamma_r * self.pinned_re)
 
     def _distance(self, o: _Orbit) -> float:
-        """How far the trajectory is from orbit ``o``: the nearest of its last q samples to
-        ``o``'s start (inf before it has q samples)."""
-        if self.nrecent < o.p:
-            return math.inf
-        return min(_max_diff(x, o.x0) for x in self.recent[RECENT - o.p :])
+        """How far the trajectory is from orbit ``o`` now (its latest return; inf before it
+        has q samples)."""
+        back = self._returns(o, 1)
+        return back[0] if back else math.inf
 
     def _returns(self, o: _Orbit, k: int) -> list[float]:
         """The trajectory's distance to orbit ``o`` at its last k returns, newest first: the
@@ -697,10 +696,11 @@ class _Engine:
                 return o
         return None
 
-    def _approaching(self) -> bool:
-        """Whether the trajectory is closer to a pending orbit than when it was confirmed: a
+    def _approaching(self) -> _Orbit | None:
+        """The pending orbit the trajectory is closer to than when it was confirmed, if any: a
         response on its way to an orbit is not irregular."""
-        return any(self._distance(pd.orbit) < pd.found_at for pd in self.pending)
+        return next((pd.orbit for pd in self.pending if self._distance(pd.orbit) < pd.found_at),
+                    None)  # fmt: skip
 
     def _extrapolate(self, p: int) -> _Orbit | None:
         """Extrapolate the p-periodic limit of the sequence, then confirm it by integration."""
@@ -772,15 +772,14 @@ class _Engine:
                         )
                         if lam is None:
                             lam = self._pinned_multiplier(q)
-                        if lam is None or lam >= 1.0:
-                            self.tried.append(measured[1][:q].copy())
-                        if lam is not None and lam >= 1.0:
-                            return None
                         orbit = _Orbit(xs.copy(), measured[0], q, lam)
+                        if lam is not None and lam < 1.0:
+                            return orbit
+                        # unstable, or its attraction not proven: not checked again
+                        self.tried.append(measured[1][:q].copy())
                         if lam is None:
                             self.pending.append(_Pending(orbit, self._distance(orbit)))
-                            return None
-                        return orbit
+                        return None
                     return None
                 if r > 0.5 * r_prev:
                     return None  # the cycles stopped converging
@@ -819,7 +818,7 @@ class _Engine:
         mean, se, d, trend = mser_stats(np.array(win.gamma))
         return (se is not None and len(win) - d >= MIN_WINDOWS and se <= self.s.stat_tol_db
                 and trend <= MAX_TREND and self._converging() == 0
-                and not self._approaching())  # fmt: skip
+                and self._approaching() is None)  # fmt: skip
 
     def _converging(self) -> int:
         """The smallest p whose p-spaced differences of the stroboscopic samples have shrunk a
@@ -876,9 +875,9 @@ class _Engine:
     def _unsettled_reason(self) -> str:
         win = self.windows
         what = f"the budget of {self.s.max_periods} periods ran out"
-        if self._approaching():
-            q = next(pd.orbit.p for pd in self.pending if self._distance(pd.orbit) < pd.found_at)
-            return what + (f" before the trajectory reached the period-{q} orbit extrapolated "
+        near = self._approaching()
+        if near is not None:
+            return what + (f" before the trajectory reached the period-{near.p} orbit extrapolated "
                            "from it, which is reported only once reached: the period map is not "
                            "smooth there, so its attraction is not proven")  # fmt: skip
         if not len(win):
