@@ -37,6 +37,14 @@ def _expect_text(page: Any, selector: str, pattern: str, timeout: float = 60_000
     page.wait_for_function(_HAS_TEXT, arg=[selector, pattern], timeout=timeout)
 
 
+def _expect_count(page: Any, selector: str, n: int, timeout: float = 60_000) -> None:
+    """Wait until exactly ``n`` elements match: the curves are drawn after their slices are
+    fetched, which may be after the map is drawn."""
+    page.wait_for_function(
+        "([s, n]) => document.querySelectorAll(s).length === n", arg=[selector, n], timeout=timeout
+    )
+
+
 def test_home_lists_the_study_and_its_page_draws_the_charts(page: Any, server: Server) -> None:
     with Client(server.url) as c:
         rec = c.submit(tiny_study(name="web-map", num=6, gaps=(0.1, 0.5)))
@@ -52,7 +60,7 @@ def test_home_lists_the_study_and_its_page_draws_the_charts(page: Any, server: S
     chart = page.locator('#map-chart svg[data-chart="map"]')
     chart.wait_for()
     assert int(chart.get_attribute("data-points")) == 12  # 6 γ_r × 2 gaps, every one finite
-    assert page.locator("#curve-chart svg path[data-series]").count() == 4  # Γ and Γ_lin, 2 gaps
+    _expect_count(page, "#curve-chart svg path[data-series]", 4)  # Γ and Γ_lin, 2 gaps
     page.locator("#mass-chart svg").wait_for()
     assert "grid:" in page.locator("#definition").inner_text()
     # Hover shows the values; the keyboard moves the read-out.
@@ -171,7 +179,7 @@ def test_an_adaptive_study_page_draws_its_samples_and_located_edges(
     # line did not take, and the edges listed are the located ones
     assert page.locator("#map-chart text", has_text="✖").count() == 0
     _expect_text(page, "#band-edges", r"\d")
-    assert page.locator("#curve-chart svg path[data-series]").count() == 4
+    _expect_count(page, "#curve-chart svg path[data-series]", 4)
     # each line's curve runs through its own samples: one unbroken path (a single move-to)
     d = page.locator("#curve-chart svg path[data-series]").first.get_attribute("d")
     assert d.count("M") == 1
