@@ -145,7 +145,9 @@ def _cmd_point(args: argparse.Namespace) -> int:
     if result.reason:
         print(f"reason              {result.reason}")
     if result.floquet_multiplier is not None:
-        print(f"Floquet multiplier  |μ| = {result.floquet_multiplier:.4g} (estimate)")
+        # the monodromy matrix's spectral radius (finite differences), or exact: never a guess
+        span = f"over {result.response_period} periods" if result.response_period > 1 else ""
+        print(f"Floquet multiplier  |μ| = {result.floquet_multiplier:.4g} {span}".rstrip())
     i1, i2 = result.impacts_per_period
     print(f"impacts / period    stop 1: {i1:g}, stop 2: {i2:g}")
     print(f"steps               {result.steps} ({result.contact_steps} with contact)")

@@ -197,8 +197,10 @@ VARIABLES: dict[str, Variable] = {
     ),
     "floquet_multiplier": Variable(
         "response", "float", "1",
-        "estimate of the modulus of the dominant Floquet multiplier of the steady response "
-        "(linear and periodic points; missing otherwise)",
+        "modulus of the dominant Floquet multiplier of the steady response over its period: "
+        "the monodromy matrix's spectral radius (finite differences) or exact (linear points, "
+        "zero gaps); missing where not computed (no Jacobian, early stop off) and at "
+        "irregular, unsettled and failed points",
     ),
     "periods": Variable("response", "int", "1", "excitation periods simulated", mask=False),
     "steps": Variable("response", "int", "1", "time steps taken", mask=False),

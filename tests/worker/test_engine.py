@@ -314,6 +314,46 @@ def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts(kw):
                                                  abs=0.01)  # fmt: skip
 
 
+def monodromy_radius(p: CellParams, x: np.ndarray, q: int, rel: float = 1e-6) -> float:
+    """The spectral radius of the q-period map's Jacobian at ``x`` by central differences of
+    whole runs from perturbed starts (the engine uses forward differences of its kernel)."""
+    q_periods = SolverSettings(early_stop=False, max_periods=q, window=1)
+    h = rel * np.max(np.abs(x))
+
+    def after(y: np.ndarray) -> np.ndarray:
+        return np.asarray(simulate_point(p, q_periods, initial_state=y).final_state)
+
+    J = np.empty((x.size, x.size))
+    for i in range(x.size):
+        e = np.zeros(x.size)
+        e[i] = h
+        J[:, i] = (after(x + e) - after(x - e)) / (2.0 * h)
+    return float(np.max(np.abs(np.linalg.eigvals(J))))
+
+
+def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
+    # Figure 5, θ 0.3, gap 0.7, γ_r 0.98: a period-21 orbit the trajectory's own samples reach.
+    # The 12 side runs of 21 periods more than doubled the point's periods, and up to solver
+    # version 9 the sequence's contraction stood in: 0.224, where the radius is 0.104.
+    p = cell(gamma_r=0.98, theta=0.3, g1=0.7, g2=0.7)
+    r = simulate_point(p)
+    assert r.outcome == "periodic" and r.response_period == 21
+    x = np.asarray(r.final_state)
+    assert r.floquet_multiplier == pytest.approx(monodromy_radius(p, x, 21), abs=0.01)
+
+
+def test_no_multiplier_stands_in_where_none_was_computed():
+    # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit reached by itself where a perturbed
+    # run has other impacts (no Jacobian); and any orbit of a fixed budget (early stop off),
+    # which runs nothing beyond it. Up to solver version 9 both reported the sequence's
+    # contraction (0.187 here) as the multiplier.
+    r = simulate_point(cell(gamma_r=0.94, theta=0.2, g1=0.1, g2=0.1))
+    assert r.outcome == "periodic" and r.response_period == 21
+    assert r.floquet_multiplier is None
+    fixed = simulate_point(cell(gamma_r=2.05), SolverSettings(early_stop=False, max_periods=600))
+    assert fixed.outcome == "periodic" and fixed.floquet_multiplier is None
+
+
 # --------------------------------------------------------------------------- irregular
 
 
