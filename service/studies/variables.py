@@ -199,8 +199,8 @@ VARIABLES: dict[str, Variable] = {
         "response", "float", "1",
         "modulus of the dominant Floquet multiplier of the steady response over its period: "
         "the monodromy matrix's spectral radius (finite differences) or exact (linear points, "
-        "zero gaps); missing where not computed (no Jacobian, early stop off) and at "
-        "irregular, unsettled and failed points",
+        "zero gaps); missing where not computed (no Jacobian, a check costlier than twice the "
+        "periods run, early stop off) and at irregular, unsettled and failed points",
     ),
     "periods": Variable("response", "int", "1", "excitation periods simulated", mask=False),
     "steps": Variable("response", "int", "1", "time steps taken", mask=False),

@@ -333,8 +333,9 @@ def monodromy_radius(p: CellParams, x: np.ndarray, q: int, rel: float = 1e-6) ->
 
 def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
     # Figure 5, θ 0.3, gap 0.7, γ_r 0.98: a period-21 orbit the trajectory's own samples reach.
-    # The 12 side runs of 21 periods more than doubled the point's periods, and up to solver
-    # version 9 the sequence's contraction stood in: 0.224, where the radius is 0.104.
+    # The 12 side runs of 21 periods more than double the point's periods (they may triple
+    # them), and up to solver version 9 the sequence's contraction stood in: 0.224, where the
+    # radius is 0.104.
     p = cell(gamma_r=0.98, theta=0.3, g1=0.7, g2=0.7)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 21
@@ -344,12 +345,16 @@ def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
 
 def test_no_multiplier_stands_in_where_none_was_computed():
     # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit reached by itself where a perturbed
-    # run has other impacts (no Jacobian); and any orbit of a fixed budget (early stop off),
-    # which runs nothing beyond it. Up to solver version 9 both reported the sequence's
-    # contraction (0.187 here) as the multiplier.
+    # run has other impacts (no Jacobian); θ 0.1, gap 1.0, γ_r 0.86: a period-33 orbit reached
+    # after 141 periods, whose 12·33 periods of side runs would almost quadruple its cost; and
+    # any orbit of a fixed budget (early stop off), which runs nothing beyond it. Up to solver
+    # version 9 the sequence's contraction stood in as the multiplier (0.187 at the first).
     r = simulate_point(cell(gamma_r=0.94, theta=0.2, g1=0.1, g2=0.1))
     assert r.outcome == "periodic" and r.response_period == 21
     assert r.floquet_multiplier is None
+    costly = simulate_point(cell(gamma_r=0.86, theta=0.1, g1=1.0, g2=1.0))
+    assert costly.outcome == "periodic" and costly.response_period == 33
+    assert costly.floquet_multiplier is None and costly.periods < 12 * 33  # the check not run
     fixed = simulate_point(cell(gamma_r=2.05), SolverSettings(early_stop=False, max_periods=600))
     assert fixed.outcome == "periodic" and fixed.floquet_multiplier is None
 

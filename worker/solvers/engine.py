@@ -20,7 +20,8 @@ is proven:
     reported Floquet multiplier; where the map is not smooth (no Jacobian) the orbit is
     reported only once the trajectory has reached it. The orbit is then measured over p
     periods; an orbit reached by itself gets its monodromy radius too where the map is smooth
-    (``_measure_orbit``). Where no radius is computed, none is reported: no estimate stands in.
+    and the check at most triples the point's cost (``_measure_orbit``). Where no radius is
+    computed, none is reported: no estimate stands in.
 ``irregular``
     Window statistics: Γ over each window of ``window`` periods; the initial transient is cut
     by the MSER rule; the point ends when the standard error of the mean Γ (batch means with an
@@ -94,6 +95,10 @@ MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
 # windows its statistics can use: the last MIN_WINDOWS before the earliest irregular claim on.
 # Orbits are always measured (their own side run).
 FD_STEP = 1e-7  # relative state perturbation of the monodromy matrix's finite differences
+# The monodromy check of an orbit the trajectory reached by itself may cost at most this many
+# times the periods the point has run: at most triple its cost. Orbits reached within a few
+# periods of many-mode cells (nx side runs of 40-60 states) would cost 10-15 times more.
+CHECK_COST = 2
 # Periods per batch while the trajectory approaches an orbit waiting for it (_reached): it is
 # seen within this many periods of being reached (a batch costs ~10 µs more than its periods)
 PENDING_BATCH = 4
@@ -576,18 +581,19 @@ class _Engine:
     def _measure_orbit(self, x0: np.ndarray, p: int) -> _Orbit | None:
         """The orbit the trajectory reached by itself (its samples repeat), measured over p
         periods from x0. Its multiplier is the monodromy matrix's spectral radius where the map
-        is smooth, the exact one at zero gaps, else none: no Jacobian, or early stop off (a
-        fixed budget, as the paper's scheme, runs nothing more). Up to solver version 9 the
-        sequence's contraction d_k/d_{k-p} stood in where the check was long or the map not
-        smooth: an estimate, at Figure 5's 8 such orbits (periods 18-39) off by up to 0.12 (0.224
-        for 0.104) or missing."""
+        is smooth and the check at most triples the point's cost (``CHECK_COST``), the exact one
+        at zero gaps, else none: no Jacobian, a check too costly, or early stop off (a fixed
+        budget, as the paper's scheme, runs nothing more). Up to solver version 9 the sequence's
+        contraction d_k/d_{k-p} stood in where the check was not run (at most doubling the cost)
+        or the map not smooth: an estimate, at Figure 5's 8 such orbits (periods 18-39) off by
+        up to 0.12 (0.224 for 0.104) or missing."""
         snap = self.run.save()
         try:
             got = self._side_run(x0, p)
             if got is None:
                 return None
             lam = None
-            if self.s.early_stop:
+            if self.s.early_stop and self.nx * p <= CHECK_COST * self.work["periods"]:
                 lam = self._monodromy_radius(x0, p, got[1][p - 1], _impacts(got[0]))
                 if lam is not None and math.isinf(lam):
                     return None  # over the point's limits: the main loop fails it
