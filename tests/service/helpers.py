@@ -20,6 +20,7 @@ from service.api.server import free_port
 
 __all__ = [
     "API_TOKEN",
+    "AppTransport",
     "FAST_SOLVER",
     "SLOW_SOLVER",
     "Server",
@@ -33,6 +34,32 @@ __all__ = [
 
 #: The bearer token of the token-protected test app (conftest fixture ``token_client``).
 API_TOKEN = "s3cret"
+
+# Headers that describe a body on the wire: the test client hands the body over decoded and
+# whole, so they would describe another body.
+_WIRE_HEADERS = ("content-encoding", "content-length", "transfer-encoding")
+
+
+class AppTransport(httpx.BaseTransport):
+    """``service.client.Client`` (httpx) talking to an app through Starlette's ``TestClient``.
+
+    The test client's own transport cannot be handed to httpx: Starlette builds its test
+    client on httpx2 when that is installed (httpx is deprecated there), and httpx rejects
+    httpx2's responses. This transport passes each request on as a request of the test client
+    and its answer back as an httpx response, whichever library the test client uses.
+    """
+
+    def __init__(self, tc: Any) -> None:
+        self.tc = tc
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        skip = ("host", "content-length")  # the test client sets its own
+        headers = [(k, v) for k, v in request.headers.multi_items() if k not in skip]
+        r = self.tc.request(request.method, str(request.url), headers=headers,
+                            content=request.read(), follow_redirects=False)  # fmt: skip
+        out = [(k, v) for k, v in r.headers.multi_items() if k.lower() not in _WIRE_HEADERS]
+        return httpx.Response(r.status_code, headers=out, content=r.content, request=request)
+
 
 # A coarse, fast solver: these tests check the service, not the numbers (tests/worker do that).
 FAST_SOLVER = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}

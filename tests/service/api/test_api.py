@@ -29,7 +29,7 @@ from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from service.studies.variables import OUTCOMES, outcome_names
-from tests.service.helpers import SLOW_SOLVER, comparable, tiny_study
+from tests.service.helpers import SLOW_SOLVER, AppTransport, comparable, tiny_study
 
 
 class App:
@@ -42,7 +42,7 @@ class App:
     def __enter__(self) -> App:
         self.tc.__enter__()
         self.http = self.tc
-        self.client = Client("http://testserver", transport=self.tc._transport,
+        self.client = Client("http://testserver", transport=AppTransport(self.tc),
                              token=self.settings.api_token or "")  # fmt: skip
         return self
 
@@ -192,8 +192,8 @@ def test_auth_on_and_off(make_app: Any) -> None:
         ok = app.http.get("/studies", headers={"Authorization": "Bearer s3cret"})
         assert ok.status_code == 200
         with pytest.raises(Unauthorized):
-            Client("http://testserver", transport=app.tc._transport, token="nope").list()
-        good = Client("http://testserver", transport=app.tc._transport, token="s3cret")
+            Client("http://testserver", transport=AppTransport(app.tc), token="nope").list()
+        good = Client("http://testserver", transport=AppTransport(app.tc), token="s3cret")
         assert good.submit(tiny_study())["status"] == "queued"
     with make_app() as app:  # no token configured: open
         assert app.http.get("/studies").status_code == 200

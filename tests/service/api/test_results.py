@@ -25,6 +25,7 @@ from service.client import Client, InvalidRequest
 from service.studies.chunks import StudyStore
 from service.studies.dataset import results_from_records
 from service.studies.schema import parse_study
+from tests.service.helpers import AppTransport
 
 # quick.yaml's axes (gamma_r × gap × theta), fewer frequencies.
 QUICK = {
@@ -59,7 +60,7 @@ class Served:
         self.settings = s
         self.tc = TestClient(create_app(s, run_jobs=False))
         self.tc.__enter__()
-        self.client = Client("http://testserver", token="", transport=self.tc._transport)
+        self.client = Client("http://testserver", token="", transport=AppTransport(self.tc))
         self.id = self.tc.post("/studies", json=definition).json()["id"]
         self.study = parse_study(definition)
         self.store = StudyStore(s.data_dir, self.study)
