@@ -50,8 +50,13 @@ def test_point_summary_is_readable():
     assert re.search(r"transmittance Γ\s+-?\d+\.\d+ dB", out.stdout)
     assert "impacts / period" in out.stdout and "(euler)" in out.stdout
     assert re.search(r"outcome\s+periodic \(period \d+\) after \d+ periods", out.stdout)
-    assert re.search(r"Floquet multiplier\s+\|μ\| = 0\.\d+", out.stdout)
+    assert re.search(r"Floquet multiplier\s+\|μ\| = 0\.\d+\n", out.stdout)
     assert "θ_eff (slope)" in out.stdout and "irregular" not in out.stdout
+    # a period-21 orbit (Figure 5's cell): its multiplier is over the orbit's 21 periods
+    fig5 = ("--theta", "0.3", "--sigma", "0.05", "--gamma-s", "1", "--xi", "0.05", "--gap", "0.7")
+    out = run("point", "--gamma-r", "0.98", *fig5)
+    assert re.search(r"outcome\s+periodic \(period 21\)", out.stdout)
+    assert re.search(r"Floquet multiplier\s+\|μ\| = 0\.1\d* over 21 periods\n", out.stdout)
 
 
 def test_point_summary_of_an_irregular_point_gives_the_standard_error():
