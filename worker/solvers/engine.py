@@ -592,16 +592,24 @@ class _Engine:
             got = self._side_run(x0, p)
             if got is None:
                 return None
-            lam = None
-            if self.s.early_stop and self.nx * p <= CHECK_COST * self.work["periods"]:
-                lam = self._monodromy_radius(x0, p, got[1][p - 1], _impacts(got[0]))
-                if lam is not None and math.isinf(lam):
-                    return None  # over the point's limits: the main loop fails it
-            if lam is None:
-                lam = self._pinned_multiplier(p)
+            check = self.s.early_stop and self.nx * p <= CHECK_COST * self.work["periods"]
+            lam = self._multiplier(x0, p, got[1][p - 1], _impacts(got[0]), check)
+            if lam is not None and math.isinf(lam):
+                return None  # over the point's limits: the main loop fails it
             return _Orbit(x0.copy(), got[0], p, lam)
         finally:
             self.run.restore(snap)
+
+    def _multiplier(self, x0: np.ndarray, p: int, fx0: np.ndarray, impacts: float,
+                    check: bool = True) -> float | None:  # fmt: skip
+        """The dominant Floquet multiplier of the p-periodic orbit through ``x0``: at zero gaps
+        the pinned system's exact one, at no cost (:meth:`_pinned_multiplier`; side runs would
+        only find a perturbed tip leaving the stops); else, when ``check``, the monodromy
+        matrix's spectral radius (:meth:`_monodromy_radius`: None without a Jacobian, inf over
+        the point's limits); else None."""
+        if self.pinned_re is not None:
+            return self._pinned_multiplier(p)
+        return self._monodromy_radius(x0, p, fx0, impacts) if check else None
 
     def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
                           impacts: float) -> float | None:  # fmt: skip
@@ -655,7 +663,7 @@ class _Engine:
         motion is the constrained linear system's, and when that is damped its one periodic
         response attracts every state, with multiplier ``e^{q·T·max Re λ}`` over q periods
         (the finite differences cannot show it: a perturbed tip leaves the stops). None
-        otherwise."""
+        otherwise (undamped, or gaps not zero)."""
         if self.pinned_re is None or self.pinned_re >= 0.0:
             return None
         return math.exp(q * 2.0 * math.pi / self.p.gamma_r * self.pinned_re)
@@ -759,16 +767,12 @@ class _Engine:
                         # orbit past its period doubling), and the Ritz values of a short
                         # sequence miss the slowest mode (0.41 where the map has 0.64) or
                         # add spurious ones (above 1 where it has 0.55). Where the map is not
-                        # smooth (None: zero gaps, sticking, grazing, jumps) attraction is not
-                        # proven: the orbit waits until the trajectory reaches it (solver
+                        # smooth (None: sticking, grazing, jumps; undamped zero gaps) attraction
+                        # is not proven: the orbit waits until the trajectory reaches it (solver
                         # version 9; up to 8 it stood on its confirmation alone).
                         if self._tried(xs, 1e-6):
                             return None  # checked already, from another candidate p
-                        lam = self._monodromy_radius(
-                            xs, q, measured[1][q - 1], _impacts(measured[0][:q])
-                        )
-                        if lam is None:
-                            lam = self._pinned_multiplier(q)
+                        lam = self._multiplier(xs, q, measured[1][q - 1], _impacts(measured[0][:q]))
                         orbit = _Orbit(xs.copy(), measured[0], q, lam)
                         if lam is not None and lam < 1.0:
                             return orbit
