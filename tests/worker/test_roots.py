@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from worker.solvers.event.roots import (
+    SPLITS,
     STACK,
     STACK_COLS,
     _decayed_clear,
@@ -27,6 +28,8 @@ from worker.solvers.event.roots import (
     phi1,
     refine,
     skip_start,
+    split_points,
+    split_table,
 )
 from worker.solvers.measure import cubic_above, cubic_inside, cubic_minmax, hermite_hull
 
@@ -332,6 +335,47 @@ def test_first_root_whole_is_first_root_with_the_end_exponentials_given(stiff):
         stack = np.zeros((STACK, STACK_COLS))
         got = first_root_whole(c, lam, E, len(c), off, ln, 1e-13, stack, np.zeros(len(c)))
         assert got == pytest.approx(want, abs=1e-12 * ln)
+
+
+def test_split_points_are_the_first_two_splits_of_the_interval():
+    for h in (1.0, 0.1, 2.0 * math.pi / 0.37 / 64):
+        pts = np.empty(SPLITS)
+        split_points(h, pts)
+        quarters = pts[:3] / h * 4.0
+        sixteenths = pts[3:].reshape(4, 3) / h * 16.0
+        assert np.allclose(quarters, [1, 2, 3], rtol=0, atol=1e-12)
+        assert np.allclose(sixteenths, [[4 * i + j for j in (1, 2, 3)] for i in range(4)],
+                           rtol=0, atol=1e-12)  # fmt: skip
+
+
+@pytest.mark.parametrize("stiff", [False, True])
+def test_a_whole_interval_search_with_its_split_table_is_the_same_to_the_bit(stiff):
+    # The event kernel hands a search over a whole sub-grid interval [0, h] the exponentials
+    # of the first two splits' points, computed ahead: the root (or -1) must be the one the
+    # search finds evaluating them itself, bit for bit, or the trajectories would move.
+    rng = np.random.default_rng(43 + stiff)
+    roots = differs = 0
+    for _ in range(400):
+        c, lam, off = random_sum(rng, 3)
+        if stiff:
+            c = np.append(c, 2e-3 * (rng.normal() + 1j * rng.normal()))
+            lam = np.append(lam, -rng.uniform(0.0, 2.0) + 1j * rng.uniform(150.0, 250.0))
+        h = float(rng.uniform(0.05, 4.0))
+        n = len(c)
+        E = np.array([cexp(complex(x) * h) for x in lam])
+        P = np.zeros((1, SPLITS, n), dtype=complex)
+        split_table(lam[None, :], np.array([n]), h, P)
+        stack = np.zeros((STACK, STACK_COLS))
+        w4 = np.zeros(n)
+        want = first_root_whole(c, lam, E, n, off, h, 1e-13, stack, w4)
+        got = first_root_whole(c, lam, E, n, off, h, 1e-13, stack, w4, P[0])
+        assert got == want
+        roots += want >= 0.0
+        # and the table is what the search reads: a wrong one moves some answers
+        wrong = first_root_whole(c, lam, E, n, off, h, 1e-13, stack, w4, 1.01 * P[0])
+        differs += wrong != want
+    assert roots > 100
+    assert differs > 20 or stiff  # the stiff search bounds the fast mode its own way
 
 
 def test_cexp_on_the_axes_is_the_general_formula_bit_for_bit():

@@ -61,7 +61,7 @@ class EventRun(KernelRun):
         self.y = np.zeros(nzm)
         self.evlog = np.zeros((0, ek.EV_COLS))
         self.arrays = (
-            ea.nzr, ea.nk, ea.eh, ea.lam, ea.V, ea.Vi, ea.R, ea.RV, ea.B4, ea.Pin, ea.Qout,
+            ea.nzr, ea.nk, ea.eh, ea.sp, ea.lam, ea.V, ea.Vi, ea.R, ea.RV, ea.B4, ea.Pin, ea.Qout,
             ea.hp, ea.hm, ea.gl, ea.D, ea.fidx, ea.fcs, ea.cosg, ea.sing,
             np.ascontiguousarray(sys_.Minv @ sys_.X), sys_.G, p.g1, p.g2, self.bilateral, N,
             self.spp, p.gamma_r, self.f_scale, event_tol, self.max_events,

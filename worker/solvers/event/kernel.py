@@ -523,7 +523,7 @@ def _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact):
 
 @njit(**ms.KERNEL_JIT)
 def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
-                 nzr, nk, eh, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs, cosg,
+                 nzr, nk, eh, SP, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs, cosg,
                  sing, MinvX, G, g1, g2, bilateral, N, n_grid, gamma_r, f_scale, event_tol,
                  max_events_pp, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, al, ae,
                  c1, c2, cw, Ew, x2, stack, w4):  # fmt: skip
@@ -717,8 +717,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         if ts == 0.0 and lim == ln:
                             if rt.clear_test(sums, gk, sg, ln):
                                 continue
-                            te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t, stack,
-                                                     w4)  # fmt: skip
+                            if t == 0.0:  # a whole interval: its split points' exponentials
+                                te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t,
+                                                         stack, w4, SP[0])  # fmt: skip
+                            else:
+                                te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t,
+                                                         stack, w4)  # fmt: skip
                         elif lim == ln:  # Ew = e^{λ ln}: the end costs no exponentials
                             te = rt.first_root_end(cc, lam[0], Ew, nkr, gk, ts, ln, tol_t, stack,
                                                    w4)  # fmt: skip
@@ -734,8 +738,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     te = -1.0
                     if ts == 0.0:
                         if not rt.clear_whole(c1, lam[r], Ew, nkr, 0.0, ln):
-                            te = rt.first_root_whole(c1, lam[r], Ew, nkr, 0.0, ln, tol_t, stack,
-                                                     w4)  # fmt: skip
+                            if t == 0.0:
+                                te = rt.first_root_whole(c1, lam[r], Ew, nkr, 0.0, ln, tol_t,
+                                                         stack, w4, SP[r])  # fmt: skip
+                            else:
+                                te = rt.first_root_whole(c1, lam[r], Ew, nkr, 0.0, ln, tol_t,
+                                                         stack, w4)  # fmt: skip
                     elif ts < ln:
                         te = rt.first_root_end(c1, lam[r], Ew, nkr, 0.0, ts, ln, tol_t, stack, w4)
                     if te >= 0.0:

@@ -34,7 +34,7 @@ from numba import njit
 
 from worker.memo import ArrayMemo
 from worker.model import System
-from worker.solvers.event.roots import cexp, phi1
+from worker.solvers.event.roots import SPLITS, cexp, phi1, split_table
 from worker.solvers.measure import GL_NODES
 
 __all__ = ["EventArrays", "cell_modes", "eigen", "prepare_event", "stuck_matrices"]
@@ -60,6 +60,7 @@ class EventArrays:
     nzr: np.ndarray  # state size per regime
     nk: np.ndarray  # kept eigenvalues per regime (reduced form)
     eh: np.ndarray  # e^{λ h} of the kept eigenvalues
+    sp: np.ndarray  # (3, SPLITS, nk): e^{λt} at the first two splits' points of [0, h]
     lam: np.ndarray
     V: np.ndarray  # kept eigenvectors, weight folded in (2 for a pair, 1 for a real λ)
     Vi: np.ndarray  # the matching rows of V⁻¹
@@ -439,9 +440,11 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
     Qout = np.zeros((2, nzm, nzm - 1))
     Pin[:] = Pr
     Qout[:] = Qr
+    sp = np.zeros((3, SPLITS, nzm), dtype=complex)
+    split_table(lam, nk, h, sp)  # the kernel's h: T / n_grid, T = 2π/γ_r
     cosg, sing = _phases(n_grid)
-    return EventArrays(nzr, nk, eh, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs,
-                       cosg, sing, cond)  # fmt: skip
+    return EventArrays(nzr, nk, eh, sp, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx,
+                       fcs, cosg, sing, cond)  # fmt: skip
 
 
 @functools.lru_cache(maxsize=8)

@@ -17,12 +17,17 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from worker.solvers.measure import cubic_above, cubic_minmax
 
 STACK = 160  # pieces the search may hold (depth ~ 4 per level)
-STACK_COLS = 10  # lo, hi, f and ḟ at both ends, the slow modes' f and ḟ at both ends
+# lo, hi, f and ḟ at both ends, the slow modes' f and ḟ at both ends, the row of the split
+# table (``split_table``) that holds e^{λ·hi} (-1: none), the piece's place in the first two
+# splits of an aligned search (0: the whole interval, 1-4: its quarters, -1: elsewhere)
+STACK_COLS = 12
+SPLITS = 15  # inner points of the first two splits of a search on [0, h]: 3 + 4·3
 STIFF = 20.0  # |λ|·length beyond which a mode counts as stiff over a search interval
 
 
@@ -62,6 +67,18 @@ def ev(c, lam, nz, off, t):
     d = 0.0
     for k in range(nz):
         e = c[k] * cexp(lam[k] * t)
+        f += e.real
+        d += (e * lam[k]).real
+    return f, d
+
+
+@njit(cache=True, nogil=True)
+def _ev_at(c, lam, E, nz, off):
+    """:func:`ev` at the t whose ``E = e^{λt}`` is given: the same f and ḟ bit for bit."""
+    f = off
+    d = 0.0
+    for k in range(nz):
+        e = c[k] * E[k]
         f += e.real
         d += (e * lam[k]).real
     return f, d
@@ -211,19 +228,16 @@ def first_root_end(c, lam, E, nz, off, t0, t1, tol_t, stack, w4):
     f0, d0 = ev(c, lam, nz, off, t0)
     if f0 <= 0.0:
         return t0
-    f1 = off
-    d1 = 0.0
-    for k in range(nz):  # as ev at t1
-        e = c[k] * E[k]
-        f1 += e.real
-        d1 += (e * lam[k]).real
+    f1, d1 = _ev_at(c, lam, E, nz, off)
     return _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
 
 
 @njit(cache=True, nogil=True)
-def first_root_whole(c, lam, E, nz, off, ln, tol_t, stack, w4):
+def first_root_whole(c, lam, E, nz, off, ln, tol_t, stack, w4, P=None):
     """:func:`first_root` on [0, ln] with ``E = e^{λ·ln}`` given: the ends cost no
-    exponentials."""
+    exponentials. ``P``, when given, is ``split_table``'s rows for ln (a whole sub-grid
+    interval): the inner points of the first two splits cost none either (the same f and ḟ,
+    so the same root, bit for bit)."""
     stiff = _stiff(c, lam, nz, ln)
     cut2 = (4.43 / ln) ** 2 if stiff else math.inf
     f0 = fs0 = f1 = fs1 = off
@@ -247,7 +261,7 @@ def first_root_whole(c, lam, E, nz, off, ln, tol_t, stack, w4):
     if stiff:
         return _first_root_split(c, lam, nz, off, 0.0, ln, tol_t, stack, w4, f0, d0, fs0, ds0,
                                  f1, d1, fs1, ds1)  # fmt: skip
-    return _first_root_plain(c, lam, nz, off, 0.0, ln, tol_t, stack, w4, f0, d0, f1, d1)
+    return _first_root_plain(c, lam, nz, off, 0.0, ln, tol_t, stack, w4, f0, d0, f1, d1, P)
 
 
 @njit(cache=True, nogil=True)
@@ -262,11 +276,22 @@ def _stiff(c, lam, nz, total):
 
 @njit(cache=True, nogil=True)
 def _push_quarters(stack, sp, lo, hi, ln, flo, dlo, fhi, dhi):
-    """Push ``[lo, hi]`` (``ln = hi - lo``) split in four, right to left so the leftmost piece
-    is examined first; returns the new stack top. The inner points are left NaN, each evaluated
-    when the piece ending there is examined (and passed to the next piece): a search that stops
-    at a root never evaluates the points right of it."""
+    """Push ``[lo, hi]`` (``ln = hi - lo``; row ``sp``, the piece just taken off) split in
+    four, right to left so the leftmost piece is examined first; returns the new stack top. The
+    inner points are left NaN, each evaluated when the piece ending there is examined (and
+    passed to the next piece): a search that stops at a root never evaluates the points right
+    of it. Each piece also gets its split-table row and place (``STACK_COLS``)."""
+    place = stack[sp, 11]
     for i in range(3, -1, -1):
+        if place == 0.0:  # a quarter of the whole interval
+            stack[sp, 10] = i if i < 3 else -1.0
+            stack[sp, 11] = 1.0 + i
+        elif place >= 1.0:  # a sixteenth
+            stack[sp, 10] = 3.0 + 3.0 * (place - 1.0) + i if i < 3 else -1.0
+            stack[sp, 11] = -1.0
+        else:
+            stack[sp, 10] = -1.0
+            stack[sp, 11] = -1.0
         stack[sp, 0] = lo + ln * i / 4.0
         stack[sp, 1] = lo + ln * (i + 1) / 4.0 if i < 3 else hi
         stack[sp, 2] = flo if i == 0 else math.nan
@@ -278,9 +303,41 @@ def _push_quarters(stack, sp, lo, hi, ln, flo, dlo, fhi, dhi):
 
 
 @njit(cache=True, nogil=True)
-def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1):
+def split_points(h, out):
+    """The ``SPLITS`` inner points of the first two splits of a search on [0, h], in the rows
+    :func:`_push_quarters` gives them, computed by it: the very numbers a search evaluates."""
+    st = np.empty((8, STACK_COLS))
+    st[0, 11] = 0.0  # the whole interval
+    _push_quarters(st, 0, 0.0, h, h - 0.0, math.nan, math.nan, math.nan, math.nan)
+    for i in range(4):  # quarter i is in row 3 - i
+        q = 3 - i
+        if i < 3:
+            out[int(st[q, 10])] = st[q, 1]
+        st[4, 11] = st[q, 11]
+        lo = st[q, 0]
+        hi = st[q, 1]
+        _push_quarters(st, 4, lo, hi, hi - lo, math.nan, math.nan, math.nan, math.nan)
+        for j in range(3):
+            out[int(st[7 - j, 10])] = st[7 - j, 1]
+
+
+@njit(cache=True, nogil=True)
+def split_table(lam, nk, h, out):
+    """``out[r, j, k] = e^{λ_rk t_j}`` at the ``split_points`` t_j of [0, h], for every
+    regime r: what a search on a whole sub-grid interval would evaluate there (``cexp`` of
+    the same product)."""
+    pts = np.empty(SPLITS)
+    split_points(h, pts)
+    for r in range(lam.shape[0]):
+        for j in range(SPLITS):
+            for k in range(nk[r]):
+                out[r, j, k] = cexp(lam[r, k] * pts[j])
+
+
+@njit(cache=True, nogil=True)
+def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1, P=None):
     """:func:`first_root` with the Hermite cubic of the whole sum and its error bound (f and
-    ḟ at both ends given, f(t0) > 0)."""
+    ḟ at both ends given, f(t0) > 0). ``P``: ``split_table`` rows for [t0, t1] = [0, h]."""
     bound_weights(c, lam, nz, w4)
     total = t1 - t0
     tiny = 1e-9 * total
@@ -290,6 +347,8 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
     stack[0, 3] = d0
     stack[0, 4] = f1
     stack[0, 5] = d1
+    stack[0, 10] = -1.0
+    stack[0, 11] = -1.0 if P is None else 0.0
     sp = 1
     while sp > 0:
         sp -= 1
@@ -302,7 +361,14 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1)
         fhi = stack[sp, 4]
         dhi = stack[sp, 5]
         if math.isnan(fhi):  # an inner point of a split: evaluated now, for both its pieces
-            fhi, dhi = ev(c, lam, nz, off, hi)
+            if P is None:
+                fhi, dhi = ev(c, lam, nz, off, hi)
+            else:
+                row = int(stack[sp, 10])
+                if row >= 0:
+                    fhi, dhi = _ev_at(c, lam, P[row], nz, off)
+                else:
+                    fhi, dhi = ev(c, lam, nz, off, hi)
             if sp > 0:
                 stack[sp - 1, 2] = fhi
                 stack[sp - 1, 3] = dhi
@@ -396,6 +462,7 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
     stack[0, 7] = ds0
     stack[0, 8] = fs1
     stack[0, 9] = ds1
+    stack[0, 11] = -1.0  # no split table
     sp = 1
     while sp > 0:
         sp -= 1
