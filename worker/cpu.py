@@ -10,16 +10,24 @@ A point's last bits depend on the CPU in three ways:
   them, 2 in outcome or period (``haswell`` gives the host's numbers on an AMD Zen 3).
 * numpy dispatches its float64 ``exp``, ``log``, ``sin`` and ``cos`` to AVX-512 versions where
   the CPU has them (their own approximations, not libm's).
+* OpenBLAS splits a product over its threads (one per core unless told), which sums in another
+  order: on this 2-core machine the ``exponential`` method's zero-gap point (full coupling,
+  θ 0.2, γ_r 0.5) confirmed its orbit after 45 periods with two threads and 21 with one, Γ
+  3e-10 dB apart, and 3 of the nightly suite's 8 studies (the ``exponential`` ones) differed
+  between ``--serial`` (the command's own process) and the cluster (its workers have one thread)
+  at 479 of 1,196 points, 22 of them in outcome (up to 8.3 dB).
 
 Converged linear and periodic answers agree far inside every tolerance, but a grazing or
 chaotic point amplifies the difference into another outcome (transient chaos dying out or not,
 coexisting orbits): the nightly suite's baselines, cut on another machine, differed from an AVX2
 machine's run at 26 of 2,044 points.
 
-:func:`pin` fixes all three on every x86-64 CPU with AVX2 and FMA: ``OPENBLAS_CORETYPE=Haswell``
-(read when OpenBLAS loads), ``NUMBA_CPU_NAME=haswell`` (read when numba is imported) and
-``NPY_DISABLE_CPU_FEATURES`` naming numpy's AVX-512 targets (read when numpy is imported; on a
-CPU without them it changes nothing).
+:func:`pin` fixes the first three on every x86-64 CPU with AVX2 and FMA:
+``OPENBLAS_CORETYPE=Haswell`` (read when OpenBLAS loads), ``NUMBA_CPU_NAME=haswell`` (read when
+numba is imported) and ``NPY_DISABLE_CPU_FEATURES`` naming numpy's AVX-512 targets (read when
+numpy is imported; on a CPU without them it changes nothing); and the last on every CPU: one
+BLAS thread (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``, read when the
+library loads; the matrices are small, threads only contend with the other worker processes).
 ``worker`` calls it first thing, so every process that imports ``worker`` before numpy and numba,
 and every process started from one (dask's worker processes inherit the environment), computes
 with the same kernels: the ``service`` package imports ``worker`` first, and scripts that load
@@ -36,8 +44,8 @@ import re
 import sys
 
 __all__ = [
-    "BLAS_CORE", "BLAS_ENV", "NUMBA_CPU", "NUMBA_ENV", "NUMPY_ENV", "NUMPY_OFF", "compiled_for",
-    "kernels", "pin", "pinnable",
+    "BLAS_CORE", "BLAS_ENV", "NUMBA_CPU", "NUMBA_ENV", "NUMPY_ENV", "NUMPY_OFF", "THREAD_ENVS",
+    "blas_threads", "compiled_for", "kernels", "pin", "pinnable",
 ]  # fmt: skip
 
 BLAS_ENV, BLAS_CORE = "OPENBLAS_CORETYPE", "Haswell"
@@ -45,6 +53,8 @@ NUMBA_ENV, NUMBA_CPU = "NUMBA_CPU_NAME", "haswell"
 # numpy 2's dispatch targets above AVX2 (x86-64-v3); numpy warns about names it does not know.
 NUMPY_ENV, NUMPY_OFF = "NPY_DISABLE_CPU_FEATURES", "X86_V4 AVX512_ICL AVX512_SPR"
 _NEEDS = frozenset({"avx2", "fma"})  # what both targets use
+# The BLAS libraries' thread counts (OpenBLAS reads the first, else the second; MKL the third).
+THREAD_ENVS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def _cpu_flags() -> frozenset[str]:
@@ -67,41 +77,79 @@ def pinnable(flags: frozenset[str] | None = None) -> bool:
 
 def pin(flags: frozenset[str] | None = None) -> str | None:
     """Set ``OPENBLAS_CORETYPE``, ``NUMBA_CPU_NAME`` and ``NPY_DISABLE_CPU_FEATURES`` where the
-    CPU runs those targets.
+    CPU runs those targets, and one BLAS thread (``THREAD_ENVS``) on every CPU.
 
     Returns the OpenBLAS core type now in the environment (``None``: left to OpenBLAS). Only
     libraries loaded afterwards are affected: numpy or numba imported earlier keep their choice.
     """
+    for var in THREAD_ENVS:
+        os.environ.setdefault(var, "1")
     if pinnable(flags):
         os.environ.setdefault(BLAS_ENV, BLAS_CORE)
         os.environ.setdefault(NUMBA_ENV, NUMBA_CPU)
         os.environ.setdefault(NUMPY_ENV, NUMPY_OFF)
         _warn_if_too_late()
+    else:
+        _warn_if_too_late(targets=False)
     return os.environ.get(BLAS_ENV) or None
 
 
-def _warn_if_too_late() -> None:
-    """Say so when numpy or numba was loaded before the pin with another target: this process's
-    numbers may then differ from the service's at grazing or chaotic points."""
+def _warn_if_too_late(targets: bool = True) -> None:
+    """Say so when numpy or numba was loaded before the pin with another target or BLAS thread
+    count: this process's numbers may then differ from the service's at grazing or chaotic
+    points."""
     late = []
-    blas = kernels()
-    # An empty value asks for the library's own choice: nothing to compare it with.
-    if os.environ[BLAS_ENV] and blas not in (os.environ[BLAS_ENV], "unknown"):
-        late.append(f"numpy's OpenBLAS runs its {blas} kernels")
-    target = compiled_for() if "numba" in sys.modules else os.environ[NUMBA_ENV]
-    if os.environ[NUMBA_ENV] and target != os.environ[NUMBA_ENV]:
-        late.append(f"numba compiles for {target}")
+    wanted = []
+    if targets:
+        blas = kernels()
+        # An empty value asks for the library's own choice: nothing to compare it with.
+        if os.environ[BLAS_ENV] and blas not in (os.environ[BLAS_ENV], "unknown"):
+            late.append(f"numpy's OpenBLAS runs its {blas} kernels")
+        target = compiled_for() if "numba" in sys.modules else os.environ[NUMBA_ENV]
+        if os.environ[NUMBA_ENV] and target != os.environ[NUMBA_ENV]:
+            late.append(f"numba compiles for {target}")
+        wanted += [f"{BLAS_ENV}={os.environ[BLAS_ENV]}", f"{NUMBA_ENV}={os.environ[NUMBA_ENV]}"]
+    threads = blas_threads()
+    want = os.environ[THREAD_ENVS[0]]
+    if threads is not None and want.isdigit() and threads != int(want):
+        late.append(f"numpy's OpenBLAS runs {threads} threads")
+        wanted.append(f"{THREAD_ENVS[0]}={want}")
     if late:
         import warnings
 
         warnings.warn(
-            f"{' and '.join(late)}, not {BLAS_ENV}={os.environ[BLAS_ENV]} and "
-            f"{NUMBA_ENV}={os.environ[NUMBA_ENV]} (loaded before worker): grazing or chaotic "
-            "points may end otherwise than in the service; import worker first, or set both "
-            "before starting Python",
+            f"{' and '.join(late)}, not {' and '.join(wanted)} (loaded before worker): "
+            "grazing or chaotic points may end otherwise than in the service; import worker "
+            "first, or set these before starting Python",
             RuntimeWarning,
             stacklevel=3,
         )
+
+
+def _openblas(name: str, restype: object) -> object:
+    """Call OpenBLAS's ``openblas_<name>()`` in numpy's copy; None where numpy is not loaded,
+    its BLAS is not OpenBLAS or cannot be asked."""
+    if "numpy" not in sys.modules:
+        return None
+    import ctypes
+
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
+            libs = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", f.read())))
+    except OSError:
+        return None
+    for path in libs:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        # numpy's build (scipy-openblas64) suffixes its symbols; a plain build does not.
+        for symbol in (f"scipy_openblas_{name}64_", f"openblas_{name}"):
+            fn = getattr(lib, symbol, None)
+            if fn is not None:
+                fn.restype = restype
+                return fn()
+    return None
 
 
 def kernels() -> str:
@@ -109,27 +157,20 @@ def kernels() -> str:
 
     ``"unknown"`` where numpy is not loaded, its BLAS is not OpenBLAS or cannot be asked.
     """
-    if "numpy" not in sys.modules:
-        return "unknown"
     import ctypes
 
-    try:
-        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
-            libs = sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", f.read())))
-    except OSError:
+    name = _openblas("get_corename", ctypes.c_char_p)
+    if not isinstance(name, bytes):
         return "unknown"
-    for path in libs:
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        # numpy's build (scipy-openblas64) suffixes its symbols; a plain build does not.
-        for name in ("scipy_openblas_get_corename64_", "openblas_get_corename"):
-            fn = getattr(lib, name, None)
-            if fn is not None:
-                fn.restype = ctypes.c_char_p
-                return (fn() or b"unknown").decode("ascii", "replace").strip() or "unknown"
-    return "unknown"
+    return name.decode("ascii", "replace").strip() or "unknown"
+
+
+def blas_threads() -> int | None:
+    """The threads numpy's OpenBLAS runs in this process (None where it cannot be asked)."""
+    import ctypes
+
+    n = _openblas("get_num_threads", ctypes.c_int)
+    return int(n) if isinstance(n, int) else None
 
 
 def compiled_for() -> str:

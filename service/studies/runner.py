@@ -59,6 +59,7 @@ from service.studies.summary import Cancelled, RunSummary
 from service.studies.tasks import chunk_task, compute_chunk
 from service.studies.variables import OUTCOMES, outcome_names
 from worker import simulate
+from worker.cpu import THREAD_ENVS
 from worker.simulate import (
     PointLimits,
     SolverSettings,
@@ -86,9 +87,6 @@ __all__ = [
 DEFAULT_CHUNK_SIZE = 96
 TASK_RETRIES = 2
 CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, not minutes
-# Single-threaded BLAS in worker processes: dask's ``distributed.nanny.pre-spawn-environ``
-# default already sets these to 1 before a worker process starts; only missing ones are added.
-_ONE_BLAS_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 _PROFILE_ENV = "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED"
 
 Progress = Callable[[int, int], None]  # (points done, total points)
@@ -128,11 +126,13 @@ def _is_local(client: Any) -> bool:
 
 
 def _worker_environ() -> None:
-    """Make sure worker processes start with one BLAS thread (only what dask does not set)."""
+    """Make sure worker processes start with one BLAS thread (``worker.cpu``: another count sums
+    in another order) before they import anything: dask's ``distributed.nanny.pre-spawn-environ``
+    default already sets these; only missing ones are added."""
     import dask
 
     env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
-    missing = {k: 1 for k in _ONE_BLAS_THREAD if k not in env}
+    missing = {k: 1 for k in THREAD_ENVS if k not in env}
     if missing:
         dask.config.set({"distributed.nanny.pre-spawn-environ": {**env, **missing}})
 

@@ -73,6 +73,70 @@ def test_a_fresh_process_that_imports_the_worker_first_runs_the_pinned_targets()
         assert blas and numba_cpu
 
 
+@pytest.mark.usefixtures("unpinned")
+def test_one_blas_thread_on_every_cpu_unless_the_user_set_another(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(platform, "machine", lambda: "aarch64")  # no target pinned, threads are
+    for var in cpu.THREAD_ENVS:
+        monkeypatch.delenv(var, raising=False)
+    cpu.pin(frozenset())
+    assert [os.environ[v] for v in cpu.THREAD_ENVS] == ["1", "1", "1"]
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    # this process's OpenBLAS (loaded by conftest with one thread) is not what was asked: said
+    with pytest.warns(RuntimeWarning, match="OpenBLAS runs 1 threads, not OPENBLAS_NUM_THREADS=4"):
+        cpu.pin(frozenset())
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "4"
+
+
+def _threads_unset() -> dict[str, str]:
+    return {k: v for k, v in _fresh_env().items() if k not in cpu.THREAD_ENVS}
+
+
+_POINT = (
+    "import worker; from worker.model import CellParams; "
+    "from worker.simulate import SolverSettings, simulate_point; "
+    "p = CellParams(coupling='full', modes=5, xi=0.05, g1=0.0, g2=0.0, theta=0.2, sigma=0.05, "
+    "gamma_s=1.0, gamma_r=0.5); "
+    "r = simulate_point(p, SolverSettings(method='exponential')); "
+    "from worker.cpu import blas_threads; "
+    "print(blas_threads(), repr(r.transmittance_db), r.periods)"
+)
+
+
+@pytest.mark.slow  # new Python processes
+def test_a_point_is_the_same_in_any_process_that_imports_the_worker_first() -> None:
+    # The `exponential` method's zero-gap point sums its products in another order with two
+    # BLAS threads: 45 periods to its orbit instead of 21, Γ 3e-10 dB apart. A process started
+    # without any thread setting (a serial run, `impactcell point`, a notebook) computes what a
+    # cluster worker (one thread) does, and what this test process (conftest: one thread) does.
+    from worker.model import CellParams
+    from worker.simulate import SolverSettings, simulate_point
+
+    out = subprocess.run(
+        [sys.executable, "-c", _POINT], env=_threads_unset(), capture_output=True, text=True,
+        timeout=600,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    threads, gamma, periods = out.stdout.split()
+    p = CellParams(coupling="full", modes=5, xi=0.05, g1=0.0, g2=0.0, theta=0.2, sigma=0.05,
+                   gamma_s=1.0, gamma_r=0.5)  # fmt: skip
+    here = simulate_point(p, SolverSettings(method="exponential"))
+    assert threads == "1"
+    assert (float(gamma), int(periods)) == (here.transmittance_db, here.periods)
+
+
+@pytest.mark.slow  # a new Python process
+def test_a_process_that_loaded_numpy_with_more_threads_is_told() -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", "import numpy, worker"], env=_threads_unset(),
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    if (os.cpu_count() or 1) > 1:  # OpenBLAS then starts one thread per core
+        assert "OpenBLAS runs" in out.stderr and "OPENBLAS_NUM_THREADS=1" in out.stderr
+
+
 def test_this_process_is_pinned_by_conftest() -> None:
     # conftest imports ``worker`` before numpy and numba: the test process itself is pinned.
     if CAN_PIN:
