@@ -87,7 +87,18 @@ __all__ = [
 DEFAULT_CHUNK_SIZE = 96
 TASK_RETRIES = 2
 CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, not minutes
-_PROFILE_ENV = "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED"
+# What an embedded cluster's servers (scheduler, nannies, workers) do on their event loops
+# only for a dashboard, done less often or not at all (``_quiet_embedded_cluster``): a 2-core
+# machine's cores are the bound, and these ran all the time, also on an idle service's cluster.
+_EMBEDDED_CONFIG: dict[str, object] = {
+    # the statistical profiler: every 10 ms a sample of each worker thread's stack
+    "distributed.worker.profile.enabled": False,
+    # the event-loop health check (a log line when a loop was blocked over 3 s): every 20 ms
+    "distributed.admin.tick.interval": "1s",
+    # memory (pause, spill, restart: limits a point never nears) and system statistics
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+}
 
 Progress = Callable[[int, int], None]  # (points done, total points)
 ChunkDone = Callable[[int, int, list[dict[str, Any]]], None]  # (start, stop, records)
@@ -137,17 +148,31 @@ def _worker_environ() -> None:
         dask.config.set({"distributed.nanny.pre-spawn-environ": {**env, **missing}})
 
 
-def _no_worker_profiler() -> None:
-    """Start embedded workers without dask's statistical profiler (unless
-    ``$DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED`` asks for it): a callback on every worker's
-    event loop that samples its threads' stacks each 10 ms, for the dashboard's profile page.
-    On Figure 5 (``benchmarks/run_command.py``, 5 interleaved pairs) it cost the two workers
-    1.1 s of CPU (7.3 s outside their task threads with it, 6.2 s without), on a machine whose
-    two cores are the bound."""
-    import dask
+def _env_name(key: str) -> str:
+    """The environment variable that sets dask config ``key`` (dask's own convention)."""
+    return "DASK_" + key.upper().replace(".", "__").replace("-", "_")
 
-    if _PROFILE_ENV not in os.environ:
-        dask.config.set({"distributed.worker.profile.enabled": False})
+
+def _quiet_embedded_cluster() -> None:
+    """Start an embedded cluster with ``_EMBEDDED_CONFIG``. A setting the user made stands:
+    one whose environment variable is set (e.g. ``$DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED``)
+    or whose value is not dask's shipped default (a dask config file).
+
+    Measured on this 2-core machine: the workers' profiler cost them 1.1 s of CPU over Figure 5
+    (``benchmarks/run_command.py``, 5 interleaved pairs: 7.3 → 6.2 s outside their task
+    threads); with dask's default intervals an idle 2-worker cluster used 1.1 s of CPU every
+    10 s (the command's process, which holds the scheduler and the nannies, 0.63 s; each worker
+    0.25 s), 0.2 s with these."""
+    import dask
+    import distributed  # noqa: F401  # registers its config defaults
+
+    shipped = dask.config.merge(*dask.config.defaults)
+    mine = {
+        k: v for k, v in _EMBEDDED_CONFIG.items()
+        if _env_name(k) not in os.environ
+        and dask.config.get(k, None) == dask.config.get(k, None, config=shipped)
+    }  # fmt: skip
+    dask.config.set(mine)
 
 
 def make_client(
@@ -170,7 +195,7 @@ def make_client(
     if scheduler:
         return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False), None
     _worker_environ()
-    _no_worker_profiler()
+    _quiet_embedded_cluster()
     n = workers or os.cpu_count() or 1
     ready = simulate.cache_ready(method)
     with ThreadPoolExecutor(1, thread_name_prefix="impactcell-cluster-start") as pool:

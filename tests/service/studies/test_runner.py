@@ -312,11 +312,16 @@ client, cluster = make_client(None, 2, method="event")
 try:
     loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
     profiling = client.run(lambda dask_worker: "profile" in dask_worker.periodic_callbacks)
+    # the event-loop health check's period (s): each worker's, and the scheduler's
+    ticks = client.run(lambda dask_worker: dask_worker._tick_interval)
+    ticks["scheduler"] = client.run_on_scheduler(
+        lambda dask_scheduler: dask_scheduler._tick_interval
+    )
     from xarray.backends.locks import get_dask_scheduler
 
     # what xarray's NetCDF writes in this process would lock on
     print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler(),
-                      sorted(profiling.values())]))
+                      sorted(profiling.values()), sorted(ticks.values())]))
 finally:
     _close(client, cluster)
 """
@@ -324,16 +329,18 @@ finally:
 
 @pytest.mark.slow  # real worker processes
 def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none() -> None:
+    quiet = {runner._env_name(k) for k in runner._EMBEDDED_CONFIG}
     env = {k: v for k, v in os.environ.items()
-           if k not in ("IMPACTCELL_SCHEDULER", runner._PROFILE_ENV)}  # fmt: skip
+           if k != "IMPACTCELL_SCHEDULER" and k not in quiet}  # fmt: skip
     fill = "from worker import simulate; simulate.fill_cache('event')"
     subprocess.run([sys.executable, "-c", fill], cwd=ROOT, env=env, check=True, timeout=600)
     script = [sys.executable, "-c", _WORKERS_LOAD_AT_START]
     out = subprocess.run(
         script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
-    parent, workers, netcdf_lock, profiling = json.loads(out.strip().splitlines()[-1])
+    parent, workers, netcdf_lock, profiling, ticks = json.loads(out.strip().splitlines()[-1])
     assert profiling == [False, False]  # no worker samples its threads' stacks every 10 ms
+    assert ticks == [1.0, 1.0, 1.0]  # health checks each second, not each 20 ms (dask's default)
     assert parent == []  # nothing compiled or loaded in the process that only hands out points
     assert workers == [["event"], ["event"]]  # loaded before anyone asked (no warm_up yet)
     # The client is not dask's default, so a NetCDF write (the results file, collated while the
@@ -363,17 +370,34 @@ def test_workers_get_one_blas_thread() -> None:
         assert int(env[var]) == 1, var
 
 
-def test_embedded_workers_run_without_dasks_profiler_unless_asked(monkeypatch) -> None:
+def test_embedded_clusters_run_without_what_only_a_dashboard_reads_unless_asked(
+    monkeypatch,
+) -> None:
     import dask
+    import distributed  # noqa: F401  # its config defaults
 
-    with dask.config.set({"distributed.worker.profile.enabled": True}):
-        monkeypatch.delenv(runner._PROFILE_ENV, raising=False)
-        runner._no_worker_profiler()
-        assert dask.config.get("distributed.worker.profile.enabled") is False
-    with dask.config.set({"distributed.worker.profile.enabled": True}):
-        monkeypatch.setenv(runner._PROFILE_ENV, "True")  # the user's choice stands
-        runner._no_worker_profiler()
-        assert dask.config.get("distributed.worker.profile.enabled") is True
+    shipped = dask.config.merge(*dask.config.defaults)
+    for key, value in runner._EMBEDDED_CONFIG.items():
+        default = dask.config.get(key, config=shipped)
+        assert value != default, key  # each entry changes something
+        env = runner._env_name(key)
+        with dask.config.set({key: default}):
+            monkeypatch.delenv(env, raising=False)
+            runner._quiet_embedded_cluster()
+            assert dask.config.get(key) == value
+        with dask.config.set({key: default}):
+            monkeypatch.setenv(env, str(default))  # the user's choice stands
+            runner._quiet_embedded_cluster()
+            assert dask.config.get(key) == default
+        monkeypatch.delenv(env)
+        other = "7s" if isinstance(default, str) else (not default)
+        with dask.config.set({key: other}):  # a dask config file's value stands too
+            runner._quiet_embedded_cluster()
+            assert dask.config.get(key) == other
+    # dask reads these variables as these keys
+    assert runner._env_name("distributed.worker.memory.monitor-interval") == (
+        "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL"
+    )
 
 
 def test_worker_warm_up_uses_the_default_method(cluster_client: Any) -> None:
