@@ -717,7 +717,11 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         if ts == 0.0 and lim == ln:
                             if rt.clear_test(sums, gk, sg, ln):
                                 continue
-                            if t == 0.0:  # a whole interval: its split points' exponentials
+                            # A whole interval: its split points' exponentials are in the
+                            # table. Two calls, not one with ``SP[0] if t == 0.0 else None``:
+                            # that Optional made every period of the kernel ~25 % slower,
+                            # free flight too (interleaved, fastest of 20).
+                            if t == 0.0:
                                 te = rt.first_root_whole(cc, lam[0], Ew, nkr, gk, ln, tol_t,
                                                          stack, w4, SP[0])  # fmt: skip
                             else:
