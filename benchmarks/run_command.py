@@ -9,10 +9,13 @@ catalogue (nothing reused) and on the embedded cluster (``IMPACTCELL_SCHEDULER``
 ``IMPACTCELL_DATABASE_URL`` are not passed on), and reports per run:
 
 * wall: from starting the command to its exit (interpreter start and imports included);
+* the run: the command's own ``time`` line (the study's run: finding what is known, the
+  cluster's start, computing, collating);
 * command CPU: the command's own process (``getrusage(RUSAGE_SELF)`` at its exit): imports, the
   embedded cluster's scheduler and nannies, storing chunks, collation;
-* workers CPU: its worker processes (``RUSAGE_CHILDREN``: the cluster reaps them before the
-  command exits), their kernels included;
+* workers CPU: its worker processes, their kernels included (``RUSAGE_CHILDREN``: the
+  cluster reaps them before the command exits; forked workers are the forkserver's children,
+  still running then: its CPU and its reaped children's, read from ``/proc``);
 * of it, points: the CPU of the workers' task threads, the threads that run the chunk tasks
   (points, kernels and all; the rest is each worker's imports and its event loop). Read from
   ``/proc`` every 0.1 s while the command runs (Linux; a worker's task thread is the one,
@@ -57,37 +60,68 @@ _threads = {}  # (worker pid, thread id) -> the most CPU seen (s)
 _TICK = os.sysconf("SC_CLK_TCK")
 
 
-def _sample():
-    me = os.getpid()
-    while True:
-        kids = set()
+def _children(pid):
+    kids = set()
+    try:
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{tid}/children") as fh:
+                kids.update(fh.read().split())
+    except OSError:  # no /proc (or a thread that just ended)
+        pass
+    return kids
+
+
+def _descendants():
+    # the workers: the command's children (spawned), or the forkserver's (forked)
+    todo, seen = [str(os.getpid())], set()
+    while todo:
+        for kid in _children(todo.pop()):
+            if kid not in seen:
+                seen.add(kid)
+                todo.append(kid)
+    return seen
+
+
+def _stat(pid, tid):
+    with open(f"/proc/{pid}/task/{tid}/stat" if tid else f"/proc/{pid}/stat") as fh:
+        return fh.read().rsplit(")", 1)[1].split()
+
+
+def _sample_once():
+    for pid in _descendants():
         try:
-            for tid in os.listdir(f"/proc/{me}/task"):
-                with open(f"/proc/{me}/task/{tid}/children") as fh:
-                    kids.update(fh.read().split())
-        except OSError:  # no /proc (or a thread that just ended): nothing to split this time
+            for tid in os.listdir(f"/proc/{pid}/task"):
+                f = _stat(pid, tid)
+                cpu = (int(f[11]) + int(f[12])) / _TICK  # utime + stime
+                _threads[pid, tid] = max(_threads.get((pid, tid), 0.0), cpu)
+        except OSError:  # the process or one of its threads just ended
             pass
-        for pid in kids:
-            try:
-                for tid in os.listdir(f"/proc/{pid}/task"):
-                    with open(f"/proc/{pid}/task/{tid}/stat") as fh:
-                        f = fh.read().rsplit(")", 1)[1].split()
-                    cpu = (int(f[11]) + int(f[12])) / _TICK  # utime + stime
-                    _threads[pid, tid] = max(_threads.get((pid, tid), 0.0), cpu)
-            except OSError:  # the process or one of its threads just ended
-                pass
+
+
+def _sample():
+    while True:
+        _sample_once()
         time.sleep(0.1)  # a thread's last 0.1 s before its process ends is not seen
 
 
 def _report():
     s = resource.getrusage(resource.RUSAGE_SELF)
     c = resource.getrusage(resource.RUSAGE_CHILDREN)
+    # Descendants still running (a forkserver, which reaped the workers it forked) are not in
+    # RUSAGE_CHILDREN: their CPU and that of the children they reaped.
+    alive = 0.0
+    for pid in _descendants():
+        try:
+            f = _stat(pid, None)
+        except OSError:
+            continue
+        alive += sum(int(x) for x in f[11:15]) / _TICK  # utime stime cutime cstime
     tasks = {}
     for (pid, tid), cpu in list(_threads.items()):
         if tid != pid:
             tasks[pid] = max(tasks.get(pid, 0.0), cpu)
     sys.stderr.write("RUSAGE " + json.dumps({
-        "self": s.ru_utime + s.ru_stime, "children": c.ru_utime + c.ru_stime,
+        "self": s.ru_utime + s.ru_stime, "children": c.ru_utime + c.ru_stime + alive,
         "points": sum(tasks.values()) if tasks else None}) + "\n")
     sys.stderr.flush()
 
@@ -127,6 +161,7 @@ def run_once(study: str, data_dir: Path, chunk_size: int | None = None) -> dict[
         "points": summary["points"],
         "workers": summary["workers"],
         "wall": wall,
+        "run": summary["wall_s"],
         "self": usage["self"],
         "children": usage["children"],
         "points_cpu": usage["points"],
@@ -137,21 +172,21 @@ def run_once(study: str, data_dir: Path, chunk_size: int | None = None) -> dict[
 def table(rows: list[dict[str, Any]], cores: int) -> list[str]:
     """The markdown rows: one per run, then the medians."""
     out = [
-        "| run | wall s | command CPU s | workers CPU s | of it points s | kernels s "
-        "| CPU floor s | wall − floor s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| run | wall s | of it the run s | command CPU s | workers CPU s | of it points s "
+        "| kernels s | CPU floor s | wall − floor s |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
 
     def line(name: str, r: dict[str, Any]) -> str:
         floor = (r["self"] + r["children"]) / cores
         pts = "–" if r["points_cpu"] is None else f"{r['points_cpu']:.2f}"
-        return (f"| {name} | {r['wall']:.2f} | {r['self']:.2f} | {r['children']:.2f} | {pts} | "
+        return (f"| {name} | {r['wall']:.2f} | {r['run']:.2f} | {r['self']:.2f} | {r['children']:.2f} | {pts} | "
                 f"{r['kernels']:.2f} | {floor:.2f} | {r['wall'] - floor:.2f} |")  # fmt: skip
 
     for i, r in enumerate(rows, 1):
         out.append(line(str(i), r))
     med: dict[str, Any] = {
-        k: statistics.median(r[k] for r in rows) for k in ("wall", "self", "children", "kernels")
+        k: statistics.median(r[k] for r in rows) for k in ("wall", "run", "self", "children", "kernels")
     }
     known = [r["points_cpu"] for r in rows if r["points_cpu"] is not None]
     med["points_cpu"] = statistics.median(known) if len(known) == len(rows) else None
@@ -186,8 +221,10 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *table(rows, cores),
         "",
+        "The run: the command's `time` line. "
         "Command CPU: the `impactcell` process (imports, scheduler and nannies, chunk storage, "
-        "collation); workers CPU: its worker processes; of it points: their task threads "
+        "collation); workers CPU: its worker processes (and the forkserver they are forked "
+        "from); of it points: their task threads "
         "(the points; the rest is the workers' imports and event loops); kernels: the points' "
         "`wall_s` summed (wall time: it includes waiting for a core); CPU floor: (command + "
         "workers CPU) / cores.",

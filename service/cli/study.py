@@ -14,17 +14,24 @@ __all__ = ["add_commands"]
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    # --out, --scheduler and --max-points over IMPACTCELL_DATA_DIR, _SCHEDULER, _MAX_POINTS.
+    settings = settings_from_flags(
+        {"data_dir": "--out"},
+        data_dir=args.out, scheduler=args.scheduler, max_points=args.max_points,
+    )  # fmt: skip
+    if not settings.scheduler and not args.serial:
+        from service.studies import forkserver
+
+        # The embedded cluster's workers are forked from a process that loads the simulator
+        # and its kernels on the other core while this one imports and reads the study.
+        forkserver.start()
+
     from service.api.catalogue import Catalogue
     from service.api.points import SqlPointStore
     from service.studies.runner import run_study
     from service.studies.schema import load_study
     from service.studies.shipped import resolve_study_file
 
-    # --out, --scheduler and --max-points over IMPACTCELL_DATA_DIR, _SCHEDULER, _MAX_POINTS.
-    settings = settings_from_flags(
-        {"data_dir": "--out"},
-        data_dir=args.out, scheduler=args.scheduler, max_points=args.max_points,
-    )  # fmt: skip
     study = load_study(resolve_study_file(args.study), max_points=settings.max_points)
     if settings.scheduler and not args.serial:
         # dask waits 30 s for a scheduler that is down; a probe says so in milliseconds.

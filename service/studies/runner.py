@@ -44,9 +44,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from service.studies import forkserver
 from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore, iter_chunk_ranges
 from service.studies.dataset import open_results, results_from_records, summarize
+from service.studies.forkserver import dask_env_name as _env_name
 from service.studies.points import (
     TASK_FAILED,
     PointStore,
@@ -148,11 +150,6 @@ def _worker_environ() -> None:
         dask.config.set({"distributed.nanny.pre-spawn-environ": {**env, **missing}})
 
 
-def _env_name(key: str) -> str:
-    """The environment variable that sets dask config ``key`` (dask's own convention)."""
-    return "DASK_" + key.upper().replace(".", "__").replace("-", "_")
-
-
 def _quiet_embedded_cluster() -> None:
     """Start an embedded cluster with ``_EMBEDDED_CONFIG``. A setting the user made stands:
     one whose environment variable is set (e.g. ``$DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED``)
@@ -180,11 +177,13 @@ def make_client(
 ) -> tuple[Any, Any]:
     """A dask client on ``scheduler`` if given, else on a new LocalCluster of ``workers``.
 
-    When numba's on-disk cache holds ``method``'s kernels (``None``: every method's), each
-    worker loads them as it starts (``_load_at_start``) and this process loads nothing. Else
-    the worker processes start (~1 s of imports) while the kernels are compiled here, and this
-    returns once both are done, so the workers, which then load kernels only when asked
-    (:func:`warm_up`, or their first point), find them in the cache.
+    The workers are forked from a process that has imported the simulator and loaded the
+    default method's kernels (:mod:`service.studies.forkserver`), unless the user chose how
+    dask starts them. When numba's on-disk cache holds ``method``'s kernels (``None``: every
+    method's), each worker loads them as it starts if it has not (``_load_at_start``) and this
+    process loads nothing. Else the worker processes start while the kernels are compiled
+    here, and this returns once both are done, so the workers, which then load kernels only
+    when asked (:func:`warm_up`, or their first point), find them in the cache.
     """
     from dask.distributed import Client, LocalCluster
 
@@ -196,6 +195,7 @@ def make_client(
         return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False), None
     _worker_environ()
     _quiet_embedded_cluster()
+    forkserver.start()  # workers forked from a process that has loaded them (if not done yet)
     n = workers or os.cpu_count() or 1
     ready = simulate.cache_ready(method)
     with ThreadPoolExecutor(1, thread_name_prefix="impactcell-cluster-start") as pool:

@@ -21,11 +21,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import dask
+import distributed  # noqa: F401  # its config defaults
 import pytest
 import xarray as xr
 
 from service.cli import main
-from service.studies import runner
+from service.studies import forkserver, runner
 from service.studies.chunks import StudyStore
 from service.studies.dataset import open_results
 from service.studies.runner import (
@@ -251,18 +253,20 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
     monkeypatch.setattr(dask.distributed, "LocalCluster", FakeCluster)
     monkeypatch.setattr(dask.distributed, "Client", lambda c, **kw: calls.append("client") or c)
     monkeypatch.delenv("IMPACTCELL_SCHEDULER", raising=False)
+    # the workers are forked from the forkserver (started once per process, before a cluster)
+    monkeypatch.setattr(runner.forkserver, "start", lambda: calls.append("forkserver"))
     make_client(None, 2, method="euler")
-    assert calls == ["cluster 2", "warm euler", "client"]
+    assert calls == ["forkserver", "cluster 2", "warm euler", "client"]
     begun.clear()
     calls.clear()
     make_client(None, 1)
-    assert calls == ["cluster 1", "warm event", "client"]
+    assert calls == ["forkserver", "cluster 1", "warm event", "client"]
 
     # A warm cache: the workers load the kernels as they start; the parent loads nothing.
     ready.add("euler")
     calls.clear()
     make_client(None, 2, method="euler")
-    assert calls == ["cluster 2 preload", "client"]
+    assert calls == ["forkserver", "cluster 2 preload", "client"]
     ready.clear()
 
     # A failed warm-up (a kernel that does not compile) closes the cluster started meanwhile.
@@ -274,7 +278,7 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
     monkeypatch.setattr(runner.simulate, "warm_up", broken)
     with pytest.raises(RuntimeError, match="no kernel"):
         make_client(None, 2)
-    assert calls == ["cluster 2", "closed"]
+    assert calls == ["forkserver", "cluster 2", "closed"]
 
     # A scheduler elsewhere: its workers do not share this machine's cache; nothing to warm.
     calls.clear()
@@ -304,6 +308,9 @@ def test_local_workers_are_asked_to_load_a_method_only_after_this_process_filled
 
 _WORKERS_LOAD_AT_START = r"""
 import json
+import os
+
+PARENT = os.getpid()
 from service.studies.runner import _close, make_client
 from worker import simulate
 
@@ -311,6 +318,13 @@ assert simulate.cache_ready("event")
 client, cluster = make_client(None, 2, method="event")
 try:
     loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
+    # how each worker process came to be, and what it started with
+    import os
+
+    from worker.cpu import blas_threads
+
+    origin = client.run(lambda: [os.getppid() == PARENT, os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+                                 blas_threads()])
     profiling = client.run(lambda dask_worker: "profile" in dask_worker.periodic_callbacks)
     # the event-loop health check's period (s): each worker's, and the scheduler's
     ticks = client.run(lambda dask_worker: dask_worker._tick_interval)
@@ -321,24 +335,39 @@ try:
 
     # what xarray's NetCDF writes in this process would lock on
     print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler(),
-                      sorted(profiling.values()), sorted(ticks.values())]))
+                      sorted(profiling.values()), sorted(ticks.values()),
+                      sorted(origin.values())]))
 finally:
     _close(client, cluster)
 """
 
 
 @pytest.mark.slow  # real worker processes
-def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none() -> None:
+@pytest.mark.parametrize("start", ["forked", "spawned"])
+def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none(
+    start: str,
+) -> None:
+    method = forkserver.dask_env_name(forkserver.METHOD_KEY)
     quiet = {runner._env_name(k) for k in runner._EMBEDDED_CONFIG}
     env = {k: v for k, v in os.environ.items()
-           if k != "IMPACTCELL_SCHEDULER" and k not in quiet}  # fmt: skip
+           if k not in ("IMPACTCELL_SCHEDULER", "MALLOC_TRIM_THRESHOLD_", method)
+           and k not in quiet}  # fmt: skip
+    if start == "spawned":  # the user's choice of dask's default stands
+        env[method] = "spawn"
     fill = "from worker import simulate; simulate.fill_cache('event')"
     subprocess.run([sys.executable, "-c", fill], cwd=ROOT, env=env, check=True, timeout=600)
     script = [sys.executable, "-c", _WORKERS_LOAD_AT_START]
     out = subprocess.run(
         script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
-    parent, workers, netcdf_lock, profiling, ticks = json.loads(out.strip().splitlines()[-1])
+    parent, workers, netcdf_lock, profiling, ticks, origin = json.loads(
+        out.strip().splitlines()[-1]
+    )
+    # Forked from the forkserver (not this process's children) or spawned by this process's
+    # nannies; either way with dask's pre-spawn environment (glibc's trim threshold) and one
+    # BLAS thread (another count sums in another order).
+    trim = str(dask.config.get("distributed.nanny.pre-spawn-environ")["MALLOC_TRIM_THRESHOLD_"])
+    assert origin == [[start == "spawned", trim, 1]] * 2
     assert profiling == [False, False]  # no worker samples its threads' stacks every 10 ms
     assert ticks == [1.0, 1.0, 1.0]  # health checks each second, not each 20 ms (dask's default)
     assert parent == []  # nothing compiled or loaded in the process that only hands out points
@@ -356,6 +385,7 @@ def test_a_cluster_that_cannot_start_is_an_error_in_the_caller(monkeypatch) -> N
             raise OSError("no free port")
 
     monkeypatch.setattr(runner.simulate, "warm_up", lambda m=None: None)
+    monkeypatch.setattr(runner.forkserver, "start", lambda: False)
     monkeypatch.setattr(dask.distributed, "LocalCluster", NoCluster)
     with pytest.raises(OSError, match="no free port"):
         make_client(None, 2)
@@ -374,7 +404,6 @@ def test_embedded_clusters_run_without_what_only_a_dashboard_reads_unless_asked(
     monkeypatch,
 ) -> None:
     import dask
-    import distributed  # noqa: F401  # its config defaults
 
     shipped = dask.config.merge(*dask.config.defaults)
     for key, value in runner._EMBEDDED_CONFIG.items():
