@@ -12,12 +12,17 @@ __all__ = ["add_commands"]
 
 
 def _cmd_nightly(args: argparse.Namespace) -> int:
-    from service.regression.run import run_suite
-
     if args.url is not None and args.serial:
         raise ValueError("--serial runs embedded; it cannot be combined with --url")
     if args.url is not None:
         check_service_url(args.url)  # reachability: run_suite, before any work
+    elif not args.serial:
+        from service.studies import forkserver
+
+        forkserver.start()  # as ``run``: the workers' forkserver loads while this imports
+
+    from service.regression.run import run_suite
+
     # --data-dir and --token over IMPACTCELL_DATA_DIR and _API_TOKEN; IMPACTCELL_MAX_POINTS.
     settings = settings_from_flags(
         {"api_token": "--token"}, data_dir=args.data_dir, api_token=args.token
