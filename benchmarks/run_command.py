@@ -180,13 +180,15 @@ def table(rows: list[dict[str, Any]], cores: int) -> list[str]:
     def line(name: str, r: dict[str, Any]) -> str:
         floor = (r["self"] + r["children"]) / cores
         pts = "–" if r["points_cpu"] is None else f"{r['points_cpu']:.2f}"
-        return (f"| {name} | {r['wall']:.2f} | {r['run']:.2f} | {r['self']:.2f} | {r['children']:.2f} | {pts} | "
-                f"{r['kernels']:.2f} | {floor:.2f} | {r['wall'] - floor:.2f} |")  # fmt: skip
+        return (f"| {name} | {r['wall']:.2f} | {r['run']:.2f} | {r['self']:.2f} | "
+                f"{r['children']:.2f} | {pts} | {r['kernels']:.2f} | {floor:.2f} | "
+                f"{r['wall'] - floor:.2f} |")  # fmt: skip
 
     for i, r in enumerate(rows, 1):
         out.append(line(str(i), r))
     med: dict[str, Any] = {
-        k: statistics.median(r[k] for r in rows) for k in ("wall", "run", "self", "children", "kernels")
+        k: statistics.median(r[k] for r in rows)
+        for k in ("wall", "run", "self", "children", "kernels")
     }
     known = [r["points_cpu"] for r in rows if r["points_cpu"] is not None]
     med["points_cpu"] = statistics.median(known) if len(known) == len(rows) else None

@@ -2,17 +2,18 @@
 
 By default dask *spawns* each worker process: a fresh interpreter that imports dask.distributed
 and the simulator and loads the numba kernels (~2 s of CPU each on the 2-core reference
-machine, most of it numba loading its typing registries, which imports scipy.linalg). With
-:func:`start`, a multiprocessing *forkserver* does that once, and each worker is a fork of it
-that starts with the kernels in memory. The forkserver is itself a fresh single-threaded
+machine, about half of it numba loading its typing registries, which imports scipy.linalg).
+With :func:`start`, a multiprocessing *forkserver* does that once, and each worker is a fork of
+it that starts with the kernels in memory. The forkserver is itself a fresh single-threaded
 interpreter (not a fork of this threaded process), so forking it is safe; it exits with this
 process.
 
-Started early (the CLI's ``run`` calls :func:`start` before its own imports), the forkserver
-imports on the core this process leaves idle while it imports and reads the study: Figure 5's
-cluster was ready 2.2 s after ``make_client`` was called, now 0.3–0.6 s
-(``benchmarks/run_command.py``). ``make_client`` calls :func:`start` too, so a cluster made
-without the early call (the service, the nightly suite) still forks its workers.
+Started early (``impactcell run`` and ``nightly`` call :func:`start` before their own imports),
+the forkserver imports on the core this process leaves idle while it imports and reads the
+study: Figure 5's cluster was ready 2.8–3.3 s after ``make_client`` was called, now 0.5–0.6 s,
+and the run took 18.7 s instead of 22.3 s (medians of 5 interleaved pairs,
+``benchmarks/run_command.py``). ``make_client`` calls :func:`start` too, so a cluster made
+without the early call (the service's) still forks its workers.
 
 A user's choice of ``distributed.worker.multiprocessing-method`` (its environment variable, or
 a dask config file's value other than dask's ``spawn``) stands, and so does spawning on a
