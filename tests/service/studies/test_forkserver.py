@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from typing import Any
 
@@ -25,6 +27,11 @@ def fresh(monkeypatch) -> Iterator[list[list[str]]]:
 
     monkeypatch.setattr(forkserver, "_started", None)
     monkeypatch.delenv(forkserver.dask_env_name(KEY), raising=False)
+    for var in dask.config.get("distributed.nanny.pre-spawn-environ"):  # put back afterwards
+        if var in os.environ:
+            monkeypatch.setenv(var, os.environ[var])
+        else:
+            monkeypatch.delenv(var, raising=False)
     started: list[list[str]] = []
     ctx = multiprocessing.get_context("forkserver")
     monkeypatch.setattr(ctx, "set_forkserver_preload", lambda mods: started.append(list(mods)))
@@ -70,8 +77,18 @@ def test_a_forkserver_that_cannot_start_leaves_dask_spawning(fresh, monkeypatch)
     assert dask.config.get(KEY) == "spawn"
 
 
-def test_the_preload_module_is_importable_by_its_name() -> None:
-    import importlib
-
-    mod = importlib.import_module(forkserver.PRELOAD)
-    assert mod.__name__ == forkserver.PRELOAD
+@pytest.mark.slow  # a fresh interpreter loads the kernels
+def test_the_preload_loads_the_default_methods_kernels_from_a_ready_cache() -> None:
+    # What the forkserver imports by name; its forks start with what it loaded.
+    code = (
+        "from worker import simulate\n"
+        "from worker.solvers.settings import DEFAULT_METHOD\n"
+        "simulate.fill_cache(DEFAULT_METHOD)\n"
+        "simulate._warm.clear()  # as a fresh forkserver, which loads from the cache\n"
+        f"import {forkserver.PRELOAD}\n"
+        "print(sorted(simulate._warm), DEFAULT_METHOD)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=600
+    ).stdout.split()
+    assert out[:-1] == [f"['{out[-1]}']"]
