@@ -118,17 +118,19 @@ def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> 
 def test_run_command_table_has_the_cpu_floor() -> None:
     rc = _load("run_command")
     rows = [
-        {"wall": 10.0, "self": 2.0, "children": 14.0, "kernels": 12.0, "points_cpu": 11.0},
-        {"wall": 12.0, "self": 4.0, "children": 16.0, "kernels": 13.0, "points_cpu": 12.0},
-    ]
+        {"wall": 10.0, "run": 7.0, "self": 2.0, "children": 14.0, "kernels": 12.0,
+         "points_cpu": 11.0},
+        {"wall": 12.0, "run": 9.0, "self": 4.0, "children": 16.0, "kernels": 13.0,
+         "points_cpu": 12.0},
+    ]  # fmt: skip
     lines = rc.table(rows, cores=2)
-    assert lines[2] == "| 1 | 10.00 | 2.00 | 14.00 | 11.00 | 12.00 | 8.00 | 2.00 |"
-    assert lines[3] == "| 2 | 12.00 | 4.00 | 16.00 | 12.00 | 13.00 | 10.00 | 2.00 |"
-    assert lines[4] == "| median | 11.00 | 3.00 | 15.00 | 11.50 | 12.50 | 9.00 | 2.00 |"
+    assert lines[2] == "| 1 | 10.00 | 7.00 | 2.00 | 14.00 | 11.00 | 12.00 | 8.00 | 2.00 |"
+    assert lines[3] == "| 2 | 12.00 | 9.00 | 4.00 | 16.00 | 12.00 | 13.00 | 10.00 | 2.00 |"
+    assert lines[4] == "| median | 11.00 | 8.00 | 3.00 | 15.00 | 11.50 | 12.50 | 9.00 | 2.00 |"
     # without /proc a run has no split: "–", and the median is not made up from the others
     rows[1]["points_cpu"] = None
     lines = rc.table(rows, cores=2)
-    assert lines[3].split(" | ")[4] == "–" and lines[4].split(" | ")[4] == "–"
+    assert lines[3].split(" | ")[5] == "–" and lines[4].split(" | ")[5] == "–"
     with pytest.raises(SystemExit) as exc:  # argparse's error, before anything runs
         rc.main(["--runs", "0"])
     assert exc.value.code == 2
@@ -156,6 +158,7 @@ def test_run_command_runs_the_command_and_accounts_for_its_processes(tmp_path: P
     # the command's own process imports and collates; its workers import and compute
     assert r["self"] > 0.5 and r["children"] > 0.5
     assert 0.0 < r["kernels"] < r["children"]
+    assert 0.0 < r["run"] < r["wall"]  # the run's time line: within the command
     # the points ran in the workers' task threads: part of the workers' CPU, not all of it
     # (their imports and event loops are the rest)
     assert 0.0 < r["points_cpu"] < r["children"]
