@@ -309,19 +309,19 @@ def test_local_workers_are_asked_to_load_a_method_only_after_this_process_filled
 _WORKERS_LOAD_AT_START = r"""
 import json
 import os
+import sys
 
 PARENT = os.getpid()
 from service.studies.runner import _close, make_client
 from worker import simulate
+from worker.cpu import blas_threads
 
 assert simulate.cache_ready("event")
 client, cluster = make_client(None, 2, method="event")
+dask_array = "dask.array" in sys.modules  # before anything else here could import it
 try:
     loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
     # how each worker process came to be, and what it started with
-    import os
-
-    from worker.cpu import blas_threads
 
     origin = client.run(lambda: [os.getppid() == PARENT, os.environ.get("MALLOC_TRIM_THRESHOLD_"),
                                  blas_threads()])
@@ -336,7 +336,7 @@ try:
     # what xarray's NetCDF writes in this process would lock on
     print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler(),
                       sorted(profiling.values()), sorted(ticks.values()),
-                      sorted(origin.values())]))
+                      sorted(origin.values()), dask_array]))
 finally:
     _close(client, cluster)
 """
@@ -360,9 +360,11 @@ def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads
     out = subprocess.run(
         script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
-    parent, workers, netcdf_lock, profiling, ticks, origin = json.loads(
+    parent, workers, netcdf_lock, profiling, ticks, origin, dask_array = json.loads(
         out.strip().splitlines()[-1]
     )
+    # imported while the cluster started (xarray's first variable imports it: not collation)
+    assert dask_array is True
     # Forked from the forkserver (not this process's children) or spawned by this process's
     # nannies; either way with dask's pre-spawn environment (glibc's trim threshold) and one
     # BLAS thread (another count sums in another order).
