@@ -16,8 +16,8 @@ and the run took 18.7 s instead of 22.3 s (medians of 5 interleaved pairs,
 without the early call (the service's) still forks its workers.
 
 A user's choice of ``distributed.worker.multiprocessing-method`` (its environment variable, or
-a dask config file's value other than dask's ``spawn``) stands, and so does spawning on a
-platform without forkserver (Windows).
+a value other than dask's default, ``spawn``: ``dask_settings.user_set``) stands, and so does
+spawning on a platform without forkserver (Windows).
 """
 
 from __future__ import annotations
@@ -27,17 +27,14 @@ import os
 import threading
 from multiprocessing import forkserver
 
-__all__ = ["PRELOAD", "dask_env_name", "start"]
+from service.studies.dask_settings import user_set
+
+__all__ = ["PRELOAD", "start"]
 
 METHOD_KEY = "distributed.worker.multiprocessing-method"
 PRELOAD = "service.studies.forkserver_preload"  # the module the forkserver imports first
 _lock = threading.Lock()
 _started: bool | None = None  # None: not tried yet
-
-
-def dask_env_name(key: str) -> str:
-    """The environment variable that sets dask config ``key`` (dask's own convention)."""
-    return "DASK_" + key.upper().replace(".", "__").replace("-", "_")
 
 
 def start() -> bool:
@@ -53,12 +50,8 @@ def start() -> bool:
 def _start() -> bool:
     import dask
 
-    if dask_env_name(METHOD_KEY) in os.environ or dask.config.get(METHOD_KEY, "spawn") != "spawn":
-        return False  # the user chose
-    if "forkserver" not in multiprocessing.get_all_start_methods():
+    if user_set(METHOD_KEY) or "forkserver" not in multiprocessing.get_all_start_methods():
         return False
-    import distributed  # noqa: F401  # registers its config defaults (pre-spawn-environ)
-
     # What dask sets in the nanny's environment before it spawns a worker (glibc's trim
     # threshold: it must be there when the process starts) must be in the forkserver's, which
     # its forks inherit. A variable already set stands, as in dask. (One BLAS thread: the

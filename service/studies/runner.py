@@ -47,8 +47,8 @@ from typing import Any
 from service.studies import forkserver
 from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore, iter_chunk_ranges
+from service.studies.dask_settings import user_set
 from service.studies.dataset import open_results, results_from_records, summarize
-from service.studies.forkserver import dask_env_name as _env_name
 from service.studies.points import (
     TASK_FAILED,
     PointStore,
@@ -161,15 +161,8 @@ def _quiet_embedded_cluster() -> None:
     10 s (the command's process, which holds the scheduler and the nannies, 0.63 s; each worker
     0.25 s), 0.2 s with these."""
     import dask
-    import distributed  # noqa: F401  # registers its config defaults
 
-    shipped = dask.config.merge(*dask.config.defaults)
-    mine = {
-        k: v for k, v in _EMBEDDED_CONFIG.items()
-        if _env_name(k) not in os.environ
-        and dask.config.get(k, None) == dask.config.get(k, None, config=shipped)
-    }  # fmt: skip
-    dask.config.set(mine)
+    dask.config.set({k: v for k, v in _EMBEDDED_CONFIG.items() if not user_set(k)})
 
 
 def make_client(

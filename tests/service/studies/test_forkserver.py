@@ -15,6 +15,7 @@ import dask
 import pytest
 
 from service.studies import forkserver
+from service.studies.dask_settings import env_name
 
 KEY = forkserver.METHOD_KEY
 
@@ -26,7 +27,7 @@ def fresh(monkeypatch) -> Iterator[list[list[str]]]:
     import distributed  # noqa: F401  # its defaults
 
     monkeypatch.setattr(forkserver, "_started", None)
-    monkeypatch.delenv(forkserver.dask_env_name(KEY), raising=False)
+    monkeypatch.delenv(env_name(KEY), raising=False)
     for var in dask.config.get("distributed.nanny.pre-spawn-environ"):  # put back afterwards
         if var in os.environ:
             monkeypatch.setenv(var, os.environ[var])
@@ -58,7 +59,7 @@ def test_the_forkserver_starts_once_with_the_preload_and_dask_uses_it(fresh, mon
 def test_a_users_multiprocessing_method_stands(fresh, monkeypatch, how: str) -> None:
     if how == "environment":
         # even dask's default, when the user names it, is the user's choice
-        monkeypatch.setenv(forkserver.dask_env_name(KEY), "spawn")
+        monkeypatch.setenv(env_name(KEY), "spawn")
         expected = "spawn"
     else:
         dask.config.set({KEY: "fork"})

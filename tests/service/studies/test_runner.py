@@ -29,6 +29,7 @@ import xarray as xr
 from service.cli import main
 from service.studies import forkserver, runner
 from service.studies.chunks import StudyStore
+from service.studies.dask_settings import env_name
 from service.studies.dataset import open_results
 from service.studies.runner import (
     DEFAULT_CHUNK_SIZE,
@@ -347,8 +348,8 @@ finally:
 def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads_none(
     start: str,
 ) -> None:
-    method = forkserver.dask_env_name(forkserver.METHOD_KEY)
-    quiet = {runner._env_name(k) for k in runner._EMBEDDED_CONFIG}
+    method = env_name(forkserver.METHOD_KEY)
+    quiet = {env_name(k) for k in runner._EMBEDDED_CONFIG}
     env = {k: v for k, v in os.environ.items()
            if k not in ("IMPACTCELL_SCHEDULER", "MALLOC_TRIM_THRESHOLD_", method)
            and k not in quiet}  # fmt: skip
@@ -411,7 +412,7 @@ def test_embedded_clusters_run_without_what_only_a_dashboard_reads_unless_asked(
     for key, value in runner._EMBEDDED_CONFIG.items():
         default = dask.config.get(key, config=shipped)
         assert value != default, key  # each entry changes something
-        env = runner._env_name(key)
+        env = env_name(key)
         with dask.config.set({key: default}):
             monkeypatch.delenv(env, raising=False)
             runner._quiet_embedded_cluster()
@@ -426,7 +427,7 @@ def test_embedded_clusters_run_without_what_only_a_dashboard_reads_unless_asked(
             runner._quiet_embedded_cluster()
             assert dask.config.get(key) == other
     # dask reads these variables as these keys
-    assert runner._env_name("distributed.worker.memory.monitor-interval") == (
+    assert env_name("distributed.worker.memory.monitor-interval") == (
         "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL"
     )
 
