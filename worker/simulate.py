@@ -361,6 +361,7 @@ def _warm_one(method: str, compiling: bool, quiet: bool) -> None:
     # a point that impacts and a point that is linear at once: every kernel path compiles
     simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
     compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
+    RUNS[method].compile_helpers()  # the method's own (event: the exact monodromy matrix)
     mark_done(_warm_mark(method))
     if compiling and not quiet:
         print(f"impactcell: {method!r} kernels ready in {time.perf_counter() - t0:.0f} s",

@@ -344,19 +344,28 @@ def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
 
 
 def test_no_multiplier_stands_in_where_none_was_computed():
-    # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit reached by itself where a perturbed
-    # run has other impacts (no Jacobian); θ 0.1, gap 1.0, γ_r 0.86: a period-33 orbit reached
-    # after 141 periods, whose 12·33 periods of side runs would almost quadruple its cost; and
-    # any orbit of a fixed budget (early stop off), which runs nothing beyond it. Up to solver
-    # version 9 the sequence's contraction stood in as the multiplier (0.187 at the first).
+    # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit reached by itself that starts with
+    # the tip on a stop (no exact matrix: the map is one-sided there) and where a perturbed run
+    # has other impacts (no finite-difference Jacobian); and any orbit of a fixed budget (early
+    # stop off), which runs nothing beyond it. Up to solver version 9 the sequence's contraction
+    # stood in as the multiplier (0.187 at the first).
     r = simulate_point(cell(gamma_r=0.94, theta=0.2, g1=0.1, g2=0.1))
     assert r.outcome == "periodic" and r.response_period == 21
     assert r.floquet_multiplier is None
-    costly = simulate_point(cell(gamma_r=0.86, theta=0.1, g1=1.0, g2=1.0))
-    assert costly.outcome == "periodic" and costly.response_period == 33
-    assert costly.floquet_multiplier is None and costly.periods < 12 * 33  # the check not run
     fixed = simulate_point(cell(gamma_r=2.05), SolverSettings(early_stop=False, max_periods=600))
     assert fixed.outcome == "periodic" and fixed.floquet_multiplier is None
+
+
+def test_a_long_orbit_gets_its_exact_multiplier_for_one_more_run():
+    # Figure 5, θ 0.1, gap 1.0, γ_r 0.86: a period-33 orbit reached after 141 periods. The 12·33
+    # periods of finite differences would almost quadruple its cost, so up to solver version 10
+    # it had no multiplier; the exact monodromy matrix costs one run of 33 periods.
+    p = cell(gamma_r=0.86, theta=0.1, g1=1.0, g2=1.0)
+    r = simulate_point(p)
+    assert r.outcome == "periodic" and r.response_period == 33
+    assert r.periods <= r.steady_period + 3 * 33  # found, measured, and the matrix's run
+    x = np.asarray(r.final_state)
+    assert r.floquet_multiplier == pytest.approx(monodromy_radius(p, x, 33), rel=1e-4)
 
 
 # --------------------------------------------------------------------------- irregular

@@ -137,6 +137,17 @@ class KernelRun:
                  samples: np.ndarray) -> tuple[int, int, int]:  # fmt: skip
         raise NotImplementedError
 
+    @classmethod
+    def compile_helpers(cls) -> None:
+        """Compile what the method's points reach only late (``simulate.warm_up``)."""
+
+    def monodromy(self, x0: np.ndarray, n: int, rows: np.ndarray,
+                  samples: np.ndarray) -> tuple[np.ndarray | None, int]:  # fmt: skip
+        """The exact Jacobian of the n-period map at ``x0`` where the method has one, with the
+        periods it ran for it (into ``rows``/``samples``); the caller saves/restores the run.
+        Methods without one return (None, 0): the engine uses finite differences."""
+        return None, 0
+
     def failure_reason(self, code: int) -> str:
         """Why a batch that ended with ``code`` failed (methods add their own codes)."""
         period = int(self.kst[ms.K_PERIOD])

@@ -604,19 +604,47 @@ class _Engine:
                     check: bool = True) -> float | None:  # fmt: skip
         """The dominant Floquet multiplier of the p-periodic orbit through ``x0``: at zero gaps
         the pinned system's exact one, at no cost (:meth:`_pinned_multiplier`; side runs would
-        only find a perturbed tip leaving the stops); else, when ``check``, the monodromy
-        matrix's spectral radius (:meth:`_monodromy_radius`: None without a Jacobian, inf over
-        the point's limits); else None."""
+        only find a perturbed tip leaving the stops); else the exact monodromy matrix's
+        spectral radius where the method has one and it is below 1 (one run of p periods,
+        :meth:`_exact_radius`); else, when ``check``, the finite differences'
+        (:meth:`_monodromy_radius`: None without a Jacobian, inf over the point's limits);
+        else None. Nothing runs with early stop off (a fixed budget, as the paper's scheme)."""
         if self.pinned_re is not None:
             return self._pinned_multiplier(p)
+        if not self.s.early_stop:
+            return None
+        lam = self._exact_radius(x0, p, fx0, impacts)
+        if lam is not None and lam < 1.0:
+            return lam
         return self._monodromy_radius(x0, p, fx0, impacts) if check else None
+
+    def _exact_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
+                      impacts: float) -> float | None:  # fmt: skip
+        """The spectral radius of the method's exact monodromy matrix at ``x0`` (``event``:
+        the regimes' propagators and the impacts' saltation matrices along one run of p
+        periods, ``event/monodromy.py``); None where the method has none, the replay refuses
+        (an orbit starting on a stop, a grazing impact) or the run is not the orbit's (other
+        impacts than ``impacts``, another end than ``fx0``). The caller saves/restores the run.
+        A radius of 1 or more is left to the finite differences, which tell an unstable orbit
+        from a map that is not smooth (as before the exact matrix)."""
+        rows = np.zeros((p, ms.ROW))
+        samples = np.zeros((p, self.nx))
+        J, done = self.run.monodromy(x0, p, rows, samples)
+        self._absorb(rows[:done], samples[:done], main=False)
+        if J is None or done < p or _impacts(rows) != impacts:
+            return None
+        if _max_diff(samples[-1], fx0) > FD_STEP * float(np.max(np.abs(fx0))):
+            return None
+        ev = np.linalg.eigvals(J)
+        return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
 
     def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
                           impacts: float) -> float | None:  # fmt: skip
         """The dominant Floquet multiplier's modulus of the p-periodic orbit through ``x0``
         (``fx0``: the state p periods after it): the spectral radius of the monodromy matrix,
         the p-period map's Jacobian, by forward differences of ``nx`` unmeasured side runs
-        (the caller saves/restores the run). None where the map is not smooth at ``x0``: a
+        (the caller saves/restores the run): for methods without an exact matrix, orbits that
+        start on a stop, and radii of 1 or more. None where the map is not smooth at ``x0``: a
         perturbed run has other impacts than the orbit (``impacts`` over p periods), or a
         radius of 1 or more is not reproduced with ten times the step (a jump of the map, a
         sticking or grazing contact, makes the differences grow like 1/step); inf when the

@@ -8,6 +8,7 @@ from worker.model import System
 from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.event import kernel as ek
+from worker.solvers.event import monodromy as mono
 from worker.solvers.event.regimes import MAX_COND, prepare_event
 from worker.solvers.event.roots import STACK, STACK_COLS
 from worker.solvers.settings import SolverSettings, int_in
@@ -15,6 +16,9 @@ from worker.solvers.settings import SolverSettings, int_in
 DEFAULT_GRID = 64
 DEFAULT_EVENT_TOL = 1e-12
 DEFAULT_MAX_EVENTS_PER_PERIOD = 1000
+# Event log rows per period of the exact monodromy matrix's run (an orbit with more events per
+# period gets the finite differences instead)
+LOG_ROWS_PER_PERIOD = 64
 
 
 class EventRun(KernelRun):
@@ -26,6 +30,12 @@ class EventRun(KernelRun):
     """
 
     name = "event"
+
+    @classmethod
+    def compile_helpers(cls) -> None:
+        """Compile the exact monodromy matrix's replay (reached only at a point's first
+        orbit) into numba's cache if it is not there."""
+        mono.compile_monodromy()
 
     @classmethod
     def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL,
@@ -60,10 +70,11 @@ class EventRun(KernelRun):
         self.h = 2.0 * np.pi / p.gamma_r / self.spp
         self.y = np.zeros(nzm)
         self.evlog = np.zeros((0, ek.EV_COLS))
+        self.minvx = np.ascontiguousarray(sys_.Minv @ sys_.X)  # the impulse's direction
         self.arrays = (
             ea.nzr, ea.nk, ea.eh, ea.sp, ea.lam, ea.V, ea.Vi, ea.R, ea.RV, ea.B4, ea.Pin, ea.Qout,
             ea.hp, ea.hm, ea.gl, ea.D, ea.fidx, ea.fcs, ea.cosg, ea.sing,
-            np.ascontiguousarray(sys_.Minv @ sys_.X), sys_.G, p.g1, p.g2, self.bilateral, N,
+            self.minvx, sys_.G, p.g1, p.g2, self.bilateral, N,
             self.spp, p.gamma_r, self.f_scale, event_tol, self.max_events,
         )  # fmt: skip
         cplx = [np.zeros(nzm, dtype=complex) for _ in range(6)]  # al, ae, c1, c2, cw, Ew
@@ -112,6 +123,37 @@ class EventRun(KernelRun):
             self.xh, self.evlog, *self.arrays, self.lin_L, self.lin_xp, self.lin_amp,
             self.lin_gate, self.div_limit, self.tol, *self.work,
         )  # fmt: skip
+
+    def monodromy(self, x0: np.ndarray, n: int, rows: np.ndarray,
+                  samples: np.ndarray) -> tuple[np.ndarray | None, int]:  # fmt: skip
+        """The exact monodromy matrix of the n-period map at ``x0`` (``monodromy.py``): one
+        unmeasured run of n periods from ``x0`` with an event log (into ``rows``/``samples``),
+        replayed through the regimes' propagators and the impacts' saltation matrices.
+        Returns (the matrix or None where the replay refuses, periods run); the caller
+        saves/restores the run."""
+        if self.hist.shape[0] > 0:
+            return None, 0  # a history is being recorded: leave it alone
+        self.reset(x0)
+        if self.kst[ek.K_PENDING] != 0.0 or self.kst[ek.K_SKIP_ON] != 0.0:
+            return None, 0  # the orbit starts on a stop: the map is one-sided there
+        kept = self.evlog
+        self.evlog = np.zeros((LOG_ROWS_PER_PERIOD * n, ek.EV_COLS))
+        try:
+            done, code, _ = self.advance(n, False, 0, rows, samples)
+            count = int(self.kst[ek.K_EVLOG])
+            if done < n or code != ms.END_NONE or count > self.evlog.shape[0]:
+                return None, done
+            ea = self.ea
+            J = np.zeros((self.nx, self.nx))
+            p = self.sys.params
+            status = mono.monodromy(
+                self.evlog, count, x0, self.x, self.f_scale, 2.0 * np.pi / p.gamma_r, n,
+                int(self.kst[ek.K_REGIME]), ea.lam, ea.V, ea.Vi, ea.nk, ea.R, ea.Pin, ea.Qout,
+                self.minvx, self.sys.G, p.g1, p.g2, self.sys.ndof, J,
+            )  # fmt: skip
+            return (J if status == mono.M_OK else None), done
+        finally:
+            self.evlog = kept
 
     def failure_reason(self, code: int) -> str:
         period = int(self.kst[ms.K_PERIOD])

@@ -548,6 +548,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
     pending = int(kst[K_PENDING])
     contact = int(kst[ms.K_CONTACT])
     record = hist.shape[0] > 0
+    # events are logged wherever a log is given: with a history, or alone for the exact
+    # monodromy matrix (monodromy.py)
+    logev = evlog.shape[0] > 0
     if kst[K_SYNC] == 0.0:  # a new state: y → al (else al is carried over, to the bit)
         _modal(Vi, r, y, nk[r], nzr[r], al)
         kst[K_SYNC] = 1.0
@@ -607,7 +610,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                         last = (j * h + t) / T
                     peak = max(peak, imp_l)
                     contact = kk
-                    if record:
+                    if logev:
                         _log_event(evlog, kst, tau_now, 1.0, kk, resid, imp_l)
                     pending = -kk
                 if pending < 0:
@@ -818,7 +821,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     failed = ms.END_CHATTER
                     break
                 _state(V, r, al, nkr, nz, y)
-                if record:
+                if logev:
                     sgn = -1.0 if r == 1 else 1.0
                     resid = sgn * _row(R, r, R_MU, y, nz) / max(_row_scale(R, r, R_MU, y, nz),
                                                                 1e-300)  # fmt: skip
