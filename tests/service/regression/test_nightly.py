@@ -150,7 +150,8 @@ def test_suite_passes_against_its_own_baselines(suite: dict[str, Path]) -> None:
 def test_baseline_files_are_small_and_record_provenance(made: Path) -> None:
     with xr.open_dataset(made / "baselines" / "tiny.nc") as ds:
         assert set(ds.data_vars) == {
-            "transmittance_db", "theta_eff", "outcome", "response_period", "failed",
+            "transmittance_db", "theta_eff", "outcome", "response_period", "floquet_multiplier",
+            "failed",
         }  # fmt: skip
         assert ds["outcome"].attrs["flag_meanings"] == "linear periodic irregular unsettled failed"
         assert ds.attrs["solver_version"] == SOLVER_VERSION
@@ -533,7 +534,7 @@ def test_regression_block_does_not_change_the_study_id(tmp_path: Path) -> None:
     # What URL mode submits parses back to the same study.
     assert parse_study(entry.study.canonical()).id == entry.study.id
     assert set(entry.spec.effective_tolerances()) == {
-        "transmittance_db", "response_period", "theta_eff",
+        "transmittance_db", "response_period", "floquet_multiplier", "theta_eff",
     }  # fmt: skip
     assert entry.spec.effective_irregular() == DEFAULT_IRREGULAR
 
@@ -559,11 +560,13 @@ def _synthetic(
         ]
     g = np.where(failed, np.nan, gamma)
     rp = np.where(failed, np.nan, period).astype(float)
+    fm = np.where(np.asarray(period) > 0, 0.5, np.nan)  # an orbit's multiplier, unchanged
     return xr.Dataset(
         {
             "transmittance_db": ("gamma_r", g),
             "outcome": ("gamma_r", outcome_codes(outcome), outcome_attrs()),
             "response_period": ("gamma_r", rp),
+            "floquet_multiplier": ("gamma_r", fm),
             "failed": ("gamma_r", failed),
         },
         coords={"gamma_r": np.linspace(4.0, 5.0, n), "gap": 0.1},
@@ -679,6 +682,24 @@ def test_relative_tolerance() -> None:
     assert compare(new, _synthetic(g, rp), spec).status == "passed"
     new = _synthetic(g * (1 + 2e-3), rp)
     assert len(compare(new, _synthetic(g, rp), spec).regressions) == 2
+
+
+def test_a_moved_or_new_floquet_multiplier_is_a_change() -> None:
+    # Solver version 11 moved Figure 5's multipliers (finite differences → the exact monodromy
+    # matrix) by up to 9.5e-3, median 4e-8, and the nightly suite did not hold them yet.
+    g, rp = np.array([-10.0, -11.0, -12.0]), np.array([1, 1, 1])
+    base = _synthetic(g, rp)
+    same = _synthetic(g, rp)
+    same["floquet_multiplier"].values[0] += 5e-7
+    assert compare(same, base).status == "passed"
+    moved = _synthetic(g, rp)
+    moved["floquet_multiplier"].values[1] += 1e-5
+    moved["floquet_multiplier"].values[2] = np.nan  # a multiplier that is no longer computed
+    out = compare(moved, base)
+    assert out.status == "failed"
+    assert sorted((c.variable, c.kind) for c in out.regressions) == [
+        ("floquet_multiplier", "moved"), ("floquet_multiplier", "moved"),
+    ]  # fmt: skip
 
 
 def test_definition_check_tolerates_new_default_keys() -> None:
