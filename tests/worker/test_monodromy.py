@@ -84,14 +84,19 @@ def test_the_exact_monodromy_matrix_is_the_period_maps_jacobian(kw):
     assert r.floquet_multiplier == pytest.approx(np.max(np.abs(np.linalg.eigvals(J))), rel=1e-12)
 
 
-def test_the_replay_covers_sticking_and_releases():
+def sticking_orbit() -> tuple[EventRun, np.ndarray, np.ndarray, np.ndarray]:
+    """Figure 5's θ 0.1, gap 0.1, γ_r 0.6 orbit (period 1): its run, start, event log, end."""
     p = cell(theta=0.1, g1=0.1, g2=0.1, gamma_r=0.6)
     x = np.asarray(simulate_point(p).final_state)
     run = event_run(p)
     run.reset(x)
     run.evlog = np.zeros((64, ek.EV_COLS))
     run.advance(1, False, 0, np.zeros((1, ms.ROW)), np.zeros((1, run.nx)))
-    kinds = run.evlog[: int(run.kst[ek.K_EVLOG]), 1]
+    return run, x, run.evlog[: int(run.kst[ek.K_EVLOG])].copy(), run.x.copy()
+
+
+def test_the_replay_covers_sticking_and_releases():
+    kinds = sticking_orbit()[2][:, 1]
     assert (kinds == 1).sum() >= 2 and (kinds == 2).sum() >= 2  # impacts, and releases
 
 
@@ -118,14 +123,7 @@ def _replay(run: EventRun, x: np.ndarray, evlog: np.ndarray, x_end: np.ndarray) 
 
 
 def test_the_replay_refuses_a_log_it_cannot_account_for():
-    p = cell(theta=0.1, g1=0.1, g2=0.1, gamma_r=0.6)
-    x = np.asarray(simulate_point(p).final_state)
-    run = event_run(p)
-    run.reset(x)
-    run.evlog = np.zeros((64, ek.EV_COLS))
-    run.advance(1, False, 0, np.zeros((1, ms.ROW)), np.zeros((1, run.nx)))
-    log = run.evlog[: int(run.kst[ek.K_EVLOG])].copy()
-    end = run.x.copy()
+    run, x, log, end = sticking_orbit()
     assert _replay(run, x, log, end) == mono.M_OK
     # the run's end state moved: the replay does not reproduce it
     moved = end.copy()

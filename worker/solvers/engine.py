@@ -633,8 +633,8 @@ class _Engine:
         self._absorb(rows[:done], samples[:done], main=False)
         if J is None or done < p or _impacts(rows) != impacts:
             return None
-        if _max_diff(samples[-1], fx0) > FD_STEP * float(np.max(np.abs(fx0))):
-            return None
+        if _max_diff(samples[-1], fx0) > self.s.periodicity_tol * float(np.max(np.abs(fx0))):
+            return None  # not the orbit's run (it is the same to the bit: measuring is apart)
         ev = np.linalg.eigvals(J)
         return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
 

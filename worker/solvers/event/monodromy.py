@@ -16,8 +16,8 @@ The p-period map's Jacobian at an orbit's start ``x0`` is a product along the or
 
 One run of p periods with an event log replaces the ``nx`` finite-difference side runs (``nx``
 = 12 for 5 modes), and the matrix is exact to round-off where the differences carried a
-truncation error (forward differences with a relative step of 1e-7: up to 4e-3 in the largest
-multiplier on Figure 5's orbits; central differences converge to this matrix).
+truncation error (forward differences with a relative step of 1e-7: up to 9.5e-3 in the largest
+multiplier at Figure 5's orbits; central differences converge to this matrix).
 
 The replay refuses (and the caller falls back on finite differences) where the p-period map has
 no such Jacobian or this replay does not cover it: an orbit that starts on a stop (the map is
@@ -36,25 +36,16 @@ from numba import njit
 from worker.numba_cache import on_disk
 from worker.solvers.event.regimes import R_W, R_WD
 
-__all__ = ["MONODROMY_REASONS", "M_OK", "compile_monodromy", "monodromy"]
+__all__ = ["M_OK", "compile_monodromy", "monodromy"]
 
+# what the replay returns: a matrix, or why there is none
 M_OK = 0
-M_STUCK_IMPACT = 1
-M_GRAZING = 2
-M_RELEASE = 3
-M_END_REGIME = 4
-M_END_STATE = 5
-M_NOT_FINITE = 6
-
-#: Why the replay gave no matrix, by its code.
-MONODROMY_REASONS = {
-    M_STUCK_IMPACT: "an impact logged while the tip was stuck",
-    M_GRAZING: "an impact without a speed of approach (grazing)",
-    M_RELEASE: "a release from a stop the tip was not stuck on",
-    M_END_REGIME: "the replay ends in another regime than the run",
-    M_END_STATE: "the replay's end state differs from the run's",
-    M_NOT_FINITE: "the matrix is not finite",
-}
+M_STUCK_IMPACT = 1  # an impact logged while the tip was stuck
+M_GRAZING = 2  # an impact without a speed of approach
+M_RELEASE = 3  # a release from a stop the tip was not stuck on
+M_END_REGIME = 4  # the replay ends in another regime than the run
+M_END_STATE = 5  # the replay's end state differs from the run's
+M_NOT_FINITE = 6  # the matrix is not finite
 
 # An impact whose speed of approach is below this fraction of the velocities' size is taken as
 # grazing: the saltation matrix divides by that speed.
@@ -118,7 +109,7 @@ def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pi
     """Replay the ``n_ev`` logged events ``ev`` (rows τ, kind, stop, …) of a run of ``p``
     periods of length ``T`` from the free state ``x0`` at τ = 0, which ended at ``x_end`` in
     regime ``reg_end``: the p-period map's Jacobian into ``out`` (nx × nx). Returns ``M_OK`` or
-    the code of why there is none (``MONODROMY_REASONS``)."""
+    the code of why there is none (``M_*``)."""
     nx = 2 * N
     nzm = nx + 2
     ny = nzm - 1
