@@ -580,10 +580,12 @@ class _Engine:
 
     def _measure_orbit(self, x0: np.ndarray, p: int) -> _Orbit | None:
         """The orbit the trajectory reached by itself (its samples repeat), measured over p
-        periods from x0. Its multiplier is the monodromy matrix's spectral radius where the map
-        is smooth and the check at most triples the point's cost (``CHECK_COST``), the exact one
-        at zero gaps, else none: no Jacobian, a check too costly, or early stop off (a fixed
-        budget, as the paper's scheme, runs nothing more). Up to solver version 9 the sequence's
+        periods from x0. Its multiplier is the exact monodromy matrix's spectral radius where
+        the method has one and it is below 1 (``event``: one more run of p periods, whatever the
+        point's cost so far); else the finite differences' where the map is smooth and they at
+        most triple the point's cost (``CHECK_COST``); the exact one at zero gaps; else none: no
+        Jacobian, a check too costly, or early stop off (a fixed budget, as the paper's scheme,
+        runs nothing more). Up to solver version 9 the sequence's
         contraction d_k/d_{k-p} stood in where the check was not run (at most doubling the cost)
         or the map not smooth: an estimate, at Figure 5's 8 such orbits (periods 18-39) off by
         up to 0.12 (0.224 for 0.104) or missing."""
