@@ -128,7 +128,7 @@ def _report():
 
 atexit.register(_report)
 threading.Thread(target=_sample, daemon=True).start()
-sys.argv = ["impactcell", "run", *sys.argv[1:]]
+sys.argv = ["impactcell", "--traceback", "run", *sys.argv[1:]]  # a failure shows where it was
 from service.cli import entry
 
 entry()
