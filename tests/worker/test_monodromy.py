@@ -46,7 +46,7 @@ def central_jacobian(run: EventRun, x: np.ndarray, n: int, rel: float) -> np.nda
 
 
 def exact(run: EventRun, x: np.ndarray, n: int) -> np.ndarray | None:
-    return run.monodromy(x, n, np.zeros((n, ms.ROW)), np.zeros((n, run.nx)))[0]
+    return run.run_from(x, n, False, True, np.zeros((n, ms.ROW)), np.zeros((n, run.nx)))[0]
 
 
 # Figure 5's cells and the full coupling (contact force along M⁻¹X ≠ Wᵀ): period-1 orbits that

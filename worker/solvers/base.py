@@ -141,12 +141,15 @@ class KernelRun:
     def compile_helpers(cls) -> None:
         """Compile what the method's points reach only late (``simulate.warm_up``)."""
 
-    def monodromy(self, x0: np.ndarray, n: int, rows: np.ndarray,
-                  samples: np.ndarray) -> tuple[np.ndarray | None, int]:  # fmt: skip
-        """The exact Jacobian of the n-period map at ``x0`` where the method has one, with the
-        periods it ran for it (into ``rows``/``samples``); the caller saves/restores the run.
-        Methods without one return (None, 0): the engine uses finite differences."""
-        return None, 0
+    def run_from(self, x0: np.ndarray, n: int, measure: bool, exact: bool, rows: np.ndarray,
+                 samples: np.ndarray) -> tuple[np.ndarray | None, int, int]:  # fmt: skip
+        """Run up to n periods from the state ``x0`` (period count cleared; the caller
+        saves/restores the run) and, with ``exact``, the n-period map's exact Jacobian at
+        ``x0`` where the method has one; returns (the matrix or None, periods done, ``END_*``
+        code). Methods without one: None, and the engine differences the map."""
+        self.reset(x0)
+        done, code, _ = self.advance(n, measure, 0, rows, samples)
+        return None, done, code
 
     def failure_reason(self, code: int) -> str:
         """Why a batch that ended with ``code`` failed (methods add their own codes)."""

@@ -477,18 +477,19 @@ class _Engine:
         self.nrecent = min(RECENT, self.nrecent + n)
         self.period += n
 
-    def _side_run(self, x0: np.ndarray, n: int,
-                  measure: bool = True) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
-        """Integrate n periods from x0, measured unless told otherwise (the caller
-        saves/restores the run)."""
-        self.run.reset(x0)
+    def _side_run(self, x0: np.ndarray, n: int, measure: bool = True,
+                  exact: bool = False) -> tuple[np.ndarray, np.ndarray, object] | None:  # fmt: skip
+        """Integrate n periods from x0, measured unless told otherwise; with ``exact`` the
+        method's exact monodromy matrix of the same run where it has one (else None). Returns
+        (rows, samples, matrix), or None if the run stopped (the caller saves/restores the
+        run)."""
         rows = np.zeros((n, ms.ROW))
         samples = np.zeros((n, self.nx))
-        done, code, _ = self.run.advance(n, measure, 0, rows, samples)
+        J, done, code = self.run.run_from(x0, n, measure, exact, rows, samples)
         self._absorb(rows[:done], samples[:done], main=False)
         if code != ms.END_NONE or done < n:
             return None
-        return rows, samples
+        return rows, samples, J
 
     # ------------------------------------------------------------------ the main loop
 
@@ -581,8 +582,8 @@ class _Engine:
     def _measure_orbit(self, x0: np.ndarray, p: int) -> _Orbit | None:
         """The orbit the trajectory reached by itself (its samples repeat), measured over p
         periods from x0. Its multiplier is the exact monodromy matrix's spectral radius where
-        the method has one and it is below 1 (``event``: one more run of p periods, whatever the
-        point's cost so far); else the finite differences' where the map is smooth and they at
+        the method has one and it is below 1 (``event``: from the measuring run itself, at no
+        cost); else the finite differences' where the map is smooth and they at
         most triple the point's cost (``CHECK_COST``); the exact one at zero gaps; else none: no
         Jacobian, a check too costly, or early stop off (a fixed budget, as the paper's scheme,
         runs nothing more). Up to solver version 9 the sequence's
@@ -591,54 +592,39 @@ class _Engine:
         up to 0.12 (0.224 for 0.104) or missing."""
         snap = self.run.save()
         try:
-            got = self._side_run(x0, p)
+            got = self._side_run(x0, p, exact=self.s.early_stop)
             if got is None:
                 return None
             check = self.s.early_stop and self.nx * p <= CHECK_COST * self.work["periods"]
-            lam = self._multiplier(x0, p, got[1][p - 1], _impacts(got[0]), check)
+            lam = self._multiplier(x0, p, got[1][p - 1], _impacts(got[0]), got[2], check)
             if lam is not None and math.isinf(lam):
                 return None  # over the point's limits: the main loop fails it
             return _Orbit(x0.copy(), got[0], p, lam)
         finally:
             self.run.restore(snap)
 
-    def _multiplier(self, x0: np.ndarray, p: int, fx0: np.ndarray, impacts: float,
-                    check: bool = True) -> float | None:  # fmt: skip
-        """The dominant Floquet multiplier of the p-periodic orbit through ``x0``: at zero gaps
+    def _multiplier(self, x0: np.ndarray, q: int, fx0: np.ndarray, impacts: float,
+                    exact: np.ndarray | None, check: bool = True) -> float | None:  # fmt: skip
+        """The dominant Floquet multiplier of the q-periodic orbit through ``x0``: at zero gaps
         the pinned system's exact one, at no cost (:meth:`_pinned_multiplier`; side runs would
-        only find a perturbed tip leaving the stops); else the exact monodromy matrix's
-        spectral radius where the method has one and it is below 1 (one run of p periods,
-        :meth:`_exact_radius`); else, when ``check``, the finite differences'
+        only find a perturbed tip leaving the stops); else the spectral radius of ``exact``,
+        the method's exact monodromy matrix of the q-period map from the orbit's own run
+        (``event/monodromy.py``), where it is below 1; else, when ``check``, the finite differences'
         (:meth:`_monodromy_radius`: None without a Jacobian, inf over the point's limits);
-        else None. Nothing runs with early stop off (a fixed budget, as the paper's scheme)."""
-        if self.pinned_re is not None:
-            return self._pinned_multiplier(p)
-        if not self.s.early_stop:
-            return None
-        lam = self._exact_radius(x0, p, fx0, impacts)
-        if lam is not None and lam < 1.0:
-            return lam
-        return self._monodromy_radius(x0, p, fx0, impacts) if check else None
-
-    def _exact_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
-                      impacts: float) -> float | None:  # fmt: skip
-        """The spectral radius of the method's exact monodromy matrix at ``x0`` (``event``:
-        the regimes' propagators and the impacts' saltation matrices along one run of p
-        periods, ``event/monodromy.py``); None where the method has none, the replay refuses
-        (an orbit starting on a stop, a grazing impact) or the run is not the orbit's (other
-        impacts than ``impacts``, another end than ``fx0``). The caller saves/restores the run.
+        else None. Nothing runs with early stop off (a fixed budget, as the paper's scheme).
         A radius of 1 or more is left to the finite differences, which tell an unstable orbit
         from a map that is not smooth (as before the exact matrix)."""
-        rows = np.zeros((p, ms.ROW))
-        samples = np.zeros((p, self.nx))
-        J, done = self.run.monodromy(x0, p, rows, samples)
-        self._absorb(rows[:done], samples[:done], main=False)
-        if J is None or done < p or _impacts(rows) != impacts:
+        if self.pinned_re is not None:
+            return self._pinned_multiplier(q)
+        if not self.s.early_stop:
             return None
-        if _max_diff(samples[-1], fx0) > self.s.periodicity_tol * float(np.max(np.abs(fx0))):
-            return None  # not the orbit's run (it is the same to the bit: measuring is apart)
-        ev = np.linalg.eigvals(J)
-        return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
+        if exact is not None:
+            ev = np.linalg.eigvals(exact)
+            if np.all(np.isfinite(ev)):
+                lam = float(np.max(np.abs(ev)))
+                if lam < 1.0:
+                    return lam
+        return self._monodromy_radius(x0, q, fx0, impacts) if check else None
 
     def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
                           impacts: float) -> float | None:  # fmt: skip
@@ -675,7 +661,7 @@ class _Engine:
             got = self._side_run(x, p, measure=False)
             if got is None:
                 return None
-            rows, samples = got
+            rows, samples, _ = got
             if _impacts(rows) != impacts:
                 return None
             J[:, i] = (samples[-1] - fx0) / h
@@ -776,7 +762,7 @@ class _Engine:
                 got = self._side_run(xs, p, measure=False)
                 if got is None:
                     return None
-                rows, samples = got
+                rows, samples, _ = got
                 scale = float(np.max(np.abs(xs)))
                 r = _max_diff(samples[-1], xs)
                 if _impacts(rows) != blocks[0]:
@@ -789,7 +775,7 @@ class _Engine:
                         q = next(q for q in range(1, p + 1) if p % q == 0 and (
                             q == p or _max_diff(samples[q - 1], xs)
                             <= 10.0 * self.s.periodicity_tol * scale))  # fmt: skip
-                        measured = self._side_run(xs, p)
+                        measured = self._side_run(xs, p, exact=True)
                         if measured is None:
                             return None
                         # Only an attracting orbit can be the one the trajectory approaches:
@@ -802,7 +788,12 @@ class _Engine:
                         # version 9; up to 8 it stood on its confirmation alone).
                         if self._tried(xs, 1e-6):
                             return None  # checked already, from another candidate p
-                        lam = self._multiplier(xs, q, measured[1][q - 1], _impacts(measured[0][:q]))
+                        J = measured[2]
+                        if q < p:  # the q-period map's own matrix: one run of q periods
+                            got = self._side_run(xs, q, measure=False, exact=True)
+                            J = None if got is None else got[2]
+                        lam = self._multiplier(xs, q, measured[1][q - 1],
+                                               _impacts(measured[0][:q]), J)  # fmt: skip
                         orbit = _Orbit(xs.copy(), measured[0], q, lam)
                         if lam is not None and lam < 1.0:
                             return orbit

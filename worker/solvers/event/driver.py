@@ -124,25 +124,24 @@ class EventRun(KernelRun):
             self.lin_gate, self.div_limit, self.tol, *self.work,
         )  # fmt: skip
 
-    def monodromy(self, x0: np.ndarray, n: int, rows: np.ndarray,
-                  samples: np.ndarray) -> tuple[np.ndarray | None, int]:  # fmt: skip
-        """The exact monodromy matrix of the n-period map at ``x0`` (``monodromy.py``): one
-        unmeasured run of n periods from ``x0`` with an event log (into ``rows``/``samples``),
-        replayed through the regimes' propagators and the impacts' saltation matrices.
-        Returns (the matrix or None where the replay refuses, periods run); the caller
-        saves/restores the run."""
-        if self.hist.shape[0] > 0:
-            return None, 0  # a history is being recorded: leave it alone
+    def run_from(self, x0: np.ndarray, n: int, measure: bool, exact: bool, rows: np.ndarray,
+                 samples: np.ndarray) -> tuple[np.ndarray | None, int, int]:  # fmt: skip
+        """:meth:`KernelRun.run_from`; the exact monodromy matrix (``monodromy.py``) replays the
+        run's event log through the regimes' propagators and the impacts' saltation matrices.
+        None where the orbit starts on a stop (the map is one-sided there), a history is being
+        recorded (left alone), the log overflows or the replay refuses."""
         self.reset(x0)
+        exact = exact and self.hist.shape[0] == 0
         if self.kst[ek.K_PENDING] != 0.0 or self.kst[ek.K_SKIP_ON] != 0.0:
-            return None, 0  # the orbit starts on a stop: the map is one-sided there
+            exact = False
         kept = self.evlog
-        self.evlog = np.zeros((LOG_ROWS_PER_PERIOD * n, ek.EV_COLS))
+        if exact:
+            self.evlog = np.zeros((LOG_ROWS_PER_PERIOD * n, ek.EV_COLS))
         try:
-            done, code, _ = self.advance(n, False, 0, rows, samples)
+            done, code, _ = self.advance(n, measure, 0, rows, samples)
             count = int(self.kst[ek.K_EVLOG])
-            if done < n or code != ms.END_NONE or count > self.evlog.shape[0]:
-                return None, done
+            if not exact or done < n or code != ms.END_NONE or count > self.evlog.shape[0]:
+                return None, done, code
             ea = self.ea
             J = np.zeros((self.nx, self.nx))
             p = self.sys.params
@@ -151,7 +150,7 @@ class EventRun(KernelRun):
                 int(self.kst[ek.K_REGIME]), ea.lam, ea.V, ea.Vi, ea.nk, ea.R, ea.Pin, ea.Qout,
                 self.minvx, self.sys.G, p.g1, p.g2, self.sys.ndof, J,
             )  # fmt: skip
-            return (J if status == mono.M_OK else None), done
+            return (J if status == mono.M_OK else None), done, code
         finally:
             self.evlog = kept
 
