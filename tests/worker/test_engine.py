@@ -356,10 +356,10 @@ def test_no_multiplier_stands_in_where_none_was_computed():
     assert fixed.outcome == "periodic" and fixed.floquet_multiplier is None
 
 
-def test_a_long_orbit_gets_its_exact_multiplier_for_one_more_run():
+def test_a_long_orbit_gets_its_exact_multiplier_from_its_measuring_run():
     # Figure 5, θ 0.1, gap 1.0, γ_r 0.86: a period-33 orbit reached after 141 periods. The 12·33
     # periods of finite differences would almost quadruple its cost, so up to solver version 10
-    # it had no multiplier; the exact monodromy matrix costs one run of 33 periods.
+    # it had no multiplier; the exact monodromy matrix comes from the run that measures it.
     p = cell(gamma_r=0.86, theta=0.1, g1=1.0, g2=1.0)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 33

@@ -14,8 +14,8 @@ The p-period map's Jacobian at an orbit's start ``x0`` is a product along the or
 * at a release the contact force is zero, so the free and stuck fields agree there and the
   saltation matrix is the identity: ``z = Qout y``.
 
-One run of p periods with an event log replaces the ``nx`` finite-difference side runs (``nx``
-= 12 for 5 modes), and the matrix is exact to round-off where the differences carried a
+The orbit's own measuring run, with an event log, replaces the ``nx`` finite-difference side
+runs (``nx`` = 12 for 5 modes), and the matrix is exact to round-off where the differences carried a
 truncation error (forward differences with a relative step of 1e-7: up to 9.5e-3 in the largest
 multiplier at Figure 5's orbits; central differences converge to this matrix).
 
