@@ -9,6 +9,7 @@ from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.event import kernel as ek
 from worker.solvers.event import monodromy as mono
+from worker.solvers.event import primitives as pm
 from worker.solvers.event.regimes import MAX_COND, prepare_event
 from worker.solvers.event.roots import STACK, STACK_COLS
 from worker.solvers.settings import SolverSettings, int_in
@@ -73,13 +74,15 @@ class EventRun(KernelRun):
         self.minvx = np.ascontiguousarray(sys_.Minv @ sys_.X)  # the impulse's direction
         self.arrays = (
             ea.nzr, ea.nk, ea.eh, ea.sp, ea.lam, ea.V, ea.Vi, ea.R, ea.RV, ea.B4, ea.Pin, ea.Qout,
-            ea.hp, ea.hm, ea.gl, ea.D, ea.fidx, ea.fcs, ea.cosg, ea.sing,
+            *pm.measure_tables(ea.lam, ea.RV, ea.nk, p.gamma_r), ea.D, ea.fidx, ea.fcs, ea.cosg,
+            ea.sing,
             self.minvx, sys_.G, p.g1, p.g2, self.bilateral, N,
             self.spp, p.gamma_r, self.f_scale, event_tol, self.max_events,
         )  # fmt: skip
         cplx = [np.zeros(nzm, dtype=complex) for _ in range(6)]  # al, ae, c1, c2, cw, Ew
         self.work = (
             np.zeros(nzm), *cplx, np.zeros(nzm), np.zeros((STACK, STACK_COLS)), np.zeros(nzm),
+            np.zeros(nzm, dtype=complex),  # a0: a measured segment's start
         )  # fmt: skip
 
     def _reset(self) -> None:
@@ -88,7 +91,7 @@ class EventRun(KernelRun):
         self.y[nx] = self.f_scale
         self.y[nx + 1] = 0.0
         ea = self.ea
-        _, _, a, _, _, cw, _, _, _, _ = self.work
+        _, _, a, _, _, cw, _, _, _, _, _ = self.work
         ek.start_state(self.y, self.kst, ea.R, ea.RV, ea.Vi, ea.lam, ea.nk, self.bilateral,
                        self.sys.ndof, self.sys.params.g1, self.sys.params.g2, self.h, a,
                        cw)  # fmt: skip

@@ -23,8 +23,9 @@ regime, at period ends (the stroboscopic sample) and for histories.
 
 Each period fills one row of the measurement layout (``measure.py``). The extrema of ``s`` are
 located exactly (Newton on ``ṡ = 0``) when measuring, else taken from the Hermite
-interpolant; the first harmonics are exact integrals; the phase-portrait integrals use four
-Gauss nodes per piece.
+interpolant. The first harmonics and the phase-portrait integrals are exact integrals over
+each measured segment (a stretch of one regime between events or period ends), the difference
+of their primitives at its ends (``primitives.py``): nothing is computed per sub-grid interval.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import numpy as np
 from numba import njit
 
 from worker.solvers import measure as ms
+from worker.solvers.event import primitives as pm
 from worker.solvers.event import roots as rt
 from worker.solvers.event.regimes import R_MU, R_MUD, R_S, R_SB, R_SBD, R_SD, R_W, R_WD
 
@@ -253,42 +255,6 @@ def _log_event(evlog, kst, tau, kind, stop, resid, impulse):
 
 
 @njit(cache=True, nogil=True)
-def _phase_rot(zr, zi, rc, rs):
-    """(rc + i rs)·(zr + i zi) as (re, im)."""
-    return zr * rc - zi * rs, zr * rs + zi * rc
-
-
-@njit(cache=True, nogil=True, fastmath=FAST)
-def _measure_whole(r, a, nk, hp, hm, gl, h, rc, rs):
-    """The harmonics and phase-portrait integrals of a whole sub-grid interval from its
-    modal coefficients a (rc + i rs = e^{-iγτ} at its start). Returns (s re, s im, s_b re,
-    s_b im, ∫ṡ², ∫ṡ_b ṡ). The four Gauss nodes are unrolled into one pass over the modes
-    (a loop over the nodes made measured free flight ~10 % slower)."""
-    z0 = 0.0 + 0.0j
-    z1 = 0.0 + 0.0j
-    v0 = v1 = v2 = v3 = 0.0
-    q0 = q1 = q2 = q3 = 0.0
-    for k in range(nk):
-        ak = a[k]
-        z0 += ak * hp[r, 0, k] + ak.conjugate() * hm[r, 0, k]
-        z1 += ak * hp[r, 1, k] + ak.conjugate() * hm[r, 1, k]
-        v0 += _re_mul(gl[r, 0, 0, k], ak)
-        q0 += _re_mul(gl[r, 0, 1, k], ak)
-        v1 += _re_mul(gl[r, 1, 0, k], ak)
-        q1 += _re_mul(gl[r, 1, 1, k], ak)
-        v2 += _re_mul(gl[r, 2, 0, k], ak)
-        q2 += _re_mul(gl[r, 2, 1, k], ak)
-        v3 += _re_mul(gl[r, 3, 0, k], ak)
-        q3 += _re_mul(gl[r, 3, 1, k], ak)
-    a0, a1 = _phase_rot(z0.real, z0.imag, rc, rs)
-    b0, b1 = _phase_rot(z1.real, z1.imag, rc, rs)
-    w = ms.GL_WEIGHTS
-    vv = w[0] * v0 * v0 + w[1] * v1 * v1 + w[2] * v2 * v2 + w[3] * v3 * v3
-    vb = w[0] * q0 * v0 + w[1] * q1 * v1 + w[2] * q2 * v2 + w[3] * q3 * v3
-    return a0, a1, b0, b1, h * vv, h * vb
-
-
-@njit(cache=True, nogil=True)
 def _extremum(r, a, nk, lam, RV, ln, sd0, sd1, tol_t, cw):
     """s at the exact root of ṡ inside a piece where ṡ changes sign."""
     sgn = 1.0 if sd0 > 0.0 else -1.0
@@ -316,67 +282,36 @@ def _s_range(r, a, nk, lam, RV, ln, s0, sd0, s1, sd1, measure, tol_t, cw):
 
 
 @njit(cache=True, nogil=True)
-def _phi_shift(E, lam, shift, ln, es):
-    """(e^{(λ+shift)·ln} - 1)/(λ + shift) from E = e^{λ·ln} and es = e^{shift·ln}."""
-    x = lam + shift
-    z = x * ln
-    if z.real * z.real + z.imag * z.imag < 1e-6:  # |z| < 1e-3 without a hypot
-        return ln * (1.0 + z / 2.0 * (1.0 + z / 3.0 * (1.0 + z / 4.0 * (1.0 + z / 5.0))))
-    return (E * es - 1.0) / x
+def _rot(j, t, n_grid, gamma_r, cosg, sing):
+    """e^{-iθ} = (rc, rs) at sub-grid point j plus t (θ = γ(τ - τ_k), the forcing phase in the
+    period): the table's exact value at a sub-grid point."""
+    if t == 0.0:
+        return cosg[j], -sing[j]
+    th = 2.0 * math.pi * j / n_grid + gamma_r * t
+    return math.cos(th), -math.sin(th)
 
 
 @njit(cache=True, nogil=True)
-def _measure_piece(r, a, nk, lam, RV, E, ln, ph, gamma_r):
-    """The harmonics and phase-portrait integrals of an exactly propagated piece of length ln
-    (modal coefficients a at its start, E = e^{λ ln}, forcing phase ph at its start): what
-    :func:`_measure_whole` returns."""
-    if ln <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    shift = -1j * gamma_r
-    es = rt.cexp(shift * ln)
-    acc0 = 0.0 + 0.0j
-    acc1 = 0.0 + 0.0j
-    for m in range(nk):
-        lm = lam[r, m]
-        # ∫ Re(c e^{λt}) e^{-iγt} = ½ (c ∫e^{(λ-iγ)t} + c̄ ∫e^{(λ̄-iγ)t}): a pair's both terms
-        p = _phi_shift(E[m], lm, shift, ln, es)
-        pc = _phi_shift(E[m].conjugate(), lm.conjugate(), shift, ln, es)
-        c = RV[r, R_S, m] * a[m]
-        acc0 += 0.5 * (c * p + c.conjugate() * pc)
-        c = RV[r, R_SB, m] * a[m]
-        acc1 += 0.5 * (c * p + c.conjugate() * pc)
-    rc = math.cos(ph)
-    rs = -math.sin(ph)
-    a0, a1 = _phase_rot(acc0.real, acc0.imag, rc, rs)
-    b0, b1 = _phase_rot(acc1.real, acc1.imag, rc, rs)
-    # ṡ and ṡ_b at the four Gauss nodes; the nodes are symmetric, so the step from the third
-    # to the fourth is the one from the first to the second (three exponentials per mode)
-    t0 = ms.GL_NODES[0] * ln
-    t1 = ms.GL_NODES[1] * ln
-    t2 = ms.GL_NODES[2] * ln
-    v0 = v1 = v2 = v3 = 0.0
-    q0 = q1 = q2 = q3 = 0.0
-    for m in range(nk):
-        lm = lam[r, m]
-        rd = RV[r, R_SD, m]
-        rb = RV[r, R_SBD, m]
-        step = rt.cexp(lm * (t1 - t0))
-        e = a[m] * rt.cexp(lm * t0)
-        v0 += (rd * e).real
-        q0 += (rb * e).real
-        e *= step
-        v1 += (rd * e).real
-        q1 += (rb * e).real
-        e = a[m] * rt.cexp(lm * t2)
-        v2 += (rd * e).real
-        q2 += (rb * e).real
-        e *= step
-        v3 += (rd * e).real
-        q3 += (rb * e).real
-    w = ms.GL_WEIGHTS
-    vv = w[0] * v0 * v0 + w[1] * v1 * v1 + w[2] * v2 * v2 + w[3] * v3 * v3
-    vb = w[0] * q0 * v0 + w[1] * q1 * v1 + w[2] * q2 * v2 + w[3] * q3 * v3
-    return a0, a1, b0, b1, ln * vv, ln * vb
+def _seg_open(r, al, a0, nk, H, C, rc, rs, h0, h1, h2, h3, vv, vb):
+    """Open a measured segment of regime r at the current coefficients al (forcing phase
+    rc + i rs): the primitive there is subtracted from the period's sums (``primitives.py``)
+    and al kept as the segment's start. Returns the sums."""
+    d0, d1, d2, d3, dv, db = pm.primitive(r, al, nk, H, C, rc, rs)
+    for q in range(nk):
+        a0[q] = al[q]
+    return h0 - d0, h1 - d1, h2 - d2, h3 - d3, vv - dv, vb - db
+
+
+@njit(cache=True, nogil=True)
+def _seg_close(r, al, a0, nk, H, C, dint, dcm, nd, ln, rc0, rs0, rc, rs, h0, h1, h2, h3, vv,
+               vb):  # fmt: skip
+    """Close the measured segment of length ln (it started at a0, forcing phase rc0 + i rs0)
+    at the current coefficients al (rc + i rs): the primitive there and the directly
+    integrated terms are added to the period's sums. Returns the sums."""
+    d0, d1, d2, d3, dv, db = pm.primitive(r, al, nk, H, C, rc, rs)
+    e0, e1, e2, e3, ev, eb = pm.direct(r, a0, ln, rc0, rs0, dint, dcm, nd)
+    return (h0 + d0 + e0, h1 + d1 + e1, h2 + d2 + e2, h3 + d3 + e3, vv + dv + ev,
+            vb + db + eb)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -523,10 +458,10 @@ def _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact):
 
 @njit(**ms.KERNEL_JIT)
 def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
-                 nzr, nk, eh, SP, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx, fcs, cosg,
-                 sing, MinvX, G, g1, g2, bilateral, N, n_grid, gamma_r, f_scale, event_tol,
-                 max_events_pp, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye, al, ae,
-                 c1, c2, cw, Ew, x2, stack, w4):  # fmt: skip
+                 nzr, nk, eh, SP, lam, V, Vi, R, RV, B4, Pin, Qout, H, C, dint, dcm, nd, D, fidx,
+                 fcs, cosg, sing, MinvX, G, g1, g2, bilateral, N, n_grid, gamma_r, f_scale,
+                 event_tol, max_events_pp, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye,
+                 al, ae, c1, c2, cw, Ew, x2, stack, w4, a0):  # fmt: skip
     """Advance the regime state ``y`` (and its full state ``x``) by up to ``n_periods``
     periods; returns (periods done, END code, period found).
 
@@ -566,6 +501,9 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         smin = np.inf
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
+        # the measured segment: open (seg) since position pos0 with forcing phase (rc0, rs0)
+        seg = False
+        pos0 = rc0 = rs0 = 0.0
         nsteps = ncoarse = nimpacts = imp1 = imp2 = peak = 0.0
         last = -1.0
         known = -1.0  # _magnitude(al) where already known (the forcing phase is reset below)
@@ -587,6 +525,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if pending > 0:
                     # impact at the current time (the tip did not leave a stop it was released
                     # from, or the run starts on a stop); the free regime
+                    if seg:
+                        rc, rs = _rot(j, t, n_grid, gamma_r, cosg, sing)
+                        h0, h1, h2, h3, vv, vb = _seg_close(r, al, a0, nkr, H, C, dint, dcm, nd,
+                                                            j * h + t - pos0, rc0, rs0, rc, rs,
+                                                            h0, h1, h2, h3, vv, vb)  # fmt: skip
+                        seg = False
                     ev_period += 1
                     if ev_period > max_events_pp:
                         failed = ms.END_CHATTER
@@ -661,16 +605,13 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                                           tol_t, cw)  # fmt: skip
                         smax = max(smax, hi)
                         smin = min(smin, lo)
-                        if measure:
-                            d0_, d1_, d2_, d3_, dv, db = _measure_whole(
-                                r, al, nkr, hp, hm, gl, h, cosg[j], -sing[j]
-                            )
-                            h0 += d0_
-                            h1 += d1_
-                            h2 += d2_
-                            h3 += d3_
-                            vv += dv
-                            vb += db
+                        if measure and not seg:
+                            seg = True
+                            pos0 = j * h
+                            rc0 = cosg[j]
+                            rs0 = -sing[j]
+                            h0, h1, h2, h3, vv, vb = _seg_open(r, al, a0, nkr, H, C, rc0, rs0, h0,
+                                                               h1, h2, h3, vv, vb)  # fmt: skip
                         il = _impulse(RV, r, al, nkr, lam, h, cw) if record and r != 0 else 0.0
                         if r == 0 and contact != 0:
                             contact = _opened(contact, al, h, RV, lam, nkr, g1, g2, f0, fd0, f1,
@@ -760,6 +701,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if t_ev >= 0.0:
                     for q in range(nkr):
                         Ew[q] = rt.cexp(lam[r, q] * lp)
+                if measure and not seg:
+                    seg = True
+                    pos0 = j * h + t
+                    rc0, rs0 = _rot(j, t, n_grid, gamma_r, cosg, sing)
+                    h0, h1, h2, h3, vv, vb = _seg_open(r, al, a0, nkr, H, C, rc0, rs0, h0, h1, h2,
+                                                       h3, vv, vb)  # fmt: skip
                 _step(al, Ew, nkr, ae)
                 if not have:
                     s0 = _rowa(RV, r, R_S, al, nkr)
@@ -769,23 +716,6 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 lo, hi = _s_range(r, al, nkr, lam, RV, lp, s0, sd0, s1, sd1, measure, tol_t, cw)
                 smax = max(smax, hi)
                 smin = min(smin, lo)
-                if measure:
-                    if t == 0.0 and t_ev < 0.0:
-                        # a whole interval after all: its precomputed rows measure it
-                        d0_, d1_, d2_, d3_, dv, db = _measure_whole(
-                            r, al, nkr, hp, hm, gl, h, cosg[j], -sing[j]
-                        )
-                    else:
-                        d0_, d1_, d2_, d3_, dv, db = _measure_piece(
-                            r, al, nkr, lam, RV, Ew, lp, 2.0 * math.pi * j / n_grid + gamma_r * t,
-                            gamma_r,
-                        )  # fmt: skip
-                    h0 += d0_
-                    h1 += d1_
-                    h2 += d2_
-                    h3 += d3_
-                    vv += dv
-                    vb += db
                 il = _impulse(RV, r, al, nkr, lam, lp, cw) if record and r != 0 else 0.0
                 if r == 0 and contact != 0:
                     contact = _opened(contact, al, lp, RV, lam, nkr, g1, g2,
@@ -820,6 +750,12 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 if ev_period > max_events_pp:
                     failed = ms.END_CHATTER
                     break
+                if seg:
+                    rc, rs = _rot(j, t, n_grid, gamma_r, cosg, sing)
+                    h0, h1, h2, h3, vv, vb = _seg_close(r, al, a0, nkr, H, C, dint, dcm, nd,
+                                                        j * h + t - pos0, rc0, rs0, rc, rs, h0,
+                                                        h1, h2, h3, vv, vb)  # fmt: skip
+                    seg = False
                 _state(V, r, al, nkr, nz, y)
                 if logev:
                     sgn = -1.0 if r == 1 else 1.0
@@ -838,6 +774,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             il if rk == 2 else 0.0, 2.0 + rk, Qout, N, x)  # fmt: skip
             if failed != ms.END_NONE:
                 break
+        if seg and failed == ms.END_NONE:  # the period's end: forcing phase 2π
+            h0, h1, h2, h3, vv, vb = _seg_close(r, al, a0, nk[r], H, C, dint, dcm, nd,
+                                                n_grid * h - pos0, rc0, rs0, 1.0, 0.0, h0, h1, h2,
+                                                h3, vv, vb)  # fmt: skip
         # the forcing oscillator's exact phase at the period's end (it cannot drift)
         f = fidx[r]
         if f >= 0 and failed == ms.END_NONE:

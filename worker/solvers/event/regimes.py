@@ -19,8 +19,8 @@ and process (``worker.memo``): the oscillator's eigenvectors are ``[(μ - A)⁻�
 form (one eigenvalue of each conjugate pair, weight 2): a step is ``α ∘ e^{λt}``, an
 observable is ``Re Σ RV_k α_k``. Precomputed per regime for one sub-grid interval ``h``:
 ``e^{λh}``, the observable rows over α, the bound weights ``|RV_k| |λ_k|⁴`` of the Hermite error
-of the gap (the contact force when stuck), the exact harmonic integrals and ``(ṡ, ṡ_b)`` at
-four Gauss nodes.
+of the gap (the contact force when stuck). The measurement's tables (``primitives.py``) are
+built from the same modes and rows.
 """
 
 from __future__ import annotations
@@ -34,8 +34,7 @@ from numba import njit
 
 from worker.memo import ArrayMemo
 from worker.model import System
-from worker.solvers.event.roots import SPLITS, cexp, phi1, split_table
-from worker.solvers.measure import GL_NODES
+from worker.solvers.event.roots import SPLITS, cexp, split_table
 
 __all__ = ["EventArrays", "cell_modes", "eigen", "prepare_event", "stuck_matrices"]
 
@@ -69,9 +68,6 @@ class EventArrays:
     B4: np.ndarray  # |RV_k| |λ_k|⁴ of the gap (free) or contact force (stuck) row
     Pin: np.ndarray  # free state → stuck state (projection onto the constraint)
     Qout: np.ndarray  # stuck state → free state
-    hp: np.ndarray  # (3, 2, nk) complex: ½ RV ∫₀^h e^{(λ - iγ)t} dt of the rows s and s_b
-    hm: np.ndarray  # (3, 2, nk) complex: ½ conj(RV) ∫₀^h e^{(λ̄ - iγ)t} dt of the same rows
-    gl: np.ndarray  # (3, 4, 2, nk) complex: (ṡ, ṡ_b) at the Gauss nodes of [0, h] = Re gl·α
     D: np.ndarray  # (nk,) complex: V⁻¹ [0; M⁻¹X; 0]: a contact impulse in free modal form
     fidx: np.ndarray  # (3,) the kept index of the forcing mode +iγ_r
     fcs: np.ndarray  # (3, 2) complex: its coefficient is fcs·(c, s)
@@ -255,10 +251,10 @@ def _resolvent(V0, Vi0, lam0, b, mu, u, T, c):
 
 @njit(cache=True, nogil=True)
 def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, R, gaprow, imp,
-            lam, V, Vi, RV, B4, hp, hm, gl, D, eh, fidx, fcs, nk):  # fmt: skip
+            lam, V, Vi, RV, B4, D, eh, fidx, fcs, nk):  # fmt: skip
     """Fill regime r's tables for ``[[A₀, B], [0, Ω]]`` (A₀ the cell's own dynamics, with its
     cached modes; Ω the forcing oscillator at γ_r and, when ``stuck``, the stop's position as a
-    constant state): its reduced modes, rows, bound weights, harmonic and Gauss-node tables and
+    constant state): its reduced modes, rows, bound weights and
     step factors over one sub-grid interval h (see :class:`EventArrays`). Returns the 1-norm
     condition number of its eigenvector matrix.
 
@@ -372,17 +368,6 @@ def _regime(r, lam0, V0, Vi0, keep0, w0, paired, cv0, cvi0, B, gamma, h, stuck, 
             RV[r, row, k] = acc
         m2 = lk.real * lk.real + lk.imag * lk.imag
         B4[r, k] = abs(RV[r, gaprow, k]) * m2 * m2
-        # exact ∫₀^h Re(c e^{λt}) e^{-iγt} dt = ½ (c ∫e^{(λ - iγ)t} + c̄ ∫e^{(λ̄ - iγ)t})
-        pp = 0.5 * phi1(lk - 1j * gamma, h)
-        pm = 0.5 * phi1(lk.conjugate() - 1j * gamma, h)
-        hp[r, 0, k] = RV[r, R_S, k] * pp
-        hm[r, 0, k] = RV[r, R_S, k].conjugate() * pm
-        hp[r, 1, k] = RV[r, R_SB, k] * pp
-        hm[r, 1, k] = RV[r, R_SB, k].conjugate() * pm
-        for j in range(4):
-            et = cexp(lk * (GL_NODES[j] * h))
-            gl[r, j, 0, k] = RV[r, R_SD, k] * et
-            gl[r, j, 1, k] = RV[r, R_SBD, k] * et
         eh[r, k] = cexp(lk * h)
         if imp.shape[0] > 0:
             acc = 0j
@@ -407,9 +392,6 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
     R = np.zeros((3, NROWS, nzm))
     RV = np.zeros((3, NROWS, nzm), dtype=complex)
     B4 = np.zeros((3, nzm))
-    hp = np.zeros((3, 2, nzm), dtype=complex)
-    hm = np.zeros((3, 2, nzm), dtype=complex)
-    gl = np.zeros((3, 4, 2, nzm), dtype=complex)
     eh = np.zeros((3, nzm), dtype=complex)
     fidx = np.zeros(3, dtype=np.int64)
     fcs = np.zeros((3, 2), dtype=complex)
@@ -431,10 +413,10 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
         cr = _regime(r, lam0, V0, Vi0, keep, w, paired, cv, cvi,
                      np.ascontiguousarray(A[:n0, n0:]), gamma, h, r > 0,
                      np.ascontiguousarray(R[r, :, :nz]), R_W if r == 0 else R_MU,
-                     imp if r == 0 else imp[:0], lam, V, Vi, RV, B4, hp, hm, gl, D, eh, fidx,
-                     fcs, nk)  # fmt: skip
+                     imp if r == 0 else imp[:0], lam, V, Vi, RV, B4, D, eh, fidx, fcs,
+                     nk)  # fmt: skip
         cond = max(cond, cr if math.isfinite(cr) else math.inf)
-    for arr in (nk, lam, V, Vi, R, RV, B4, hp, hm, gl, eh, fidx, fcs):
+    for arr in (nk, lam, V, Vi, R, RV, B4, eh, fidx, fcs):
         arr[2] = arr[1]
     Pin = np.zeros((2, nzm - 1, nzm))
     Qout = np.zeros((2, nzm, nzm - 1))
@@ -443,8 +425,8 @@ def prepare_event(sys_: System, n_grid: int) -> EventArrays:
     sp = np.zeros((3, SPLITS, nzm), dtype=complex)
     split_table(lam, nk, h, sp)  # the kernel's h: T / n_grid, T = 2π/γ_r
     cosg, sing = _phases(n_grid)
-    return EventArrays(nzr, nk, eh, sp, lam, V, Vi, R, RV, B4, Pin, Qout, hp, hm, gl, D, fidx,
-                       fcs, cosg, sing, cond)  # fmt: skip
+    return EventArrays(nzr, nk, eh, sp, lam, V, Vi, R, RV, B4, Pin, Qout, D, fidx, fcs, cosg,
+                       sing, cond)  # fmt: skip
 
 
 @functools.lru_cache(maxsize=8)
