@@ -52,39 +52,39 @@ T_AAC = 3
 FAST = {"reassoc", "contract"}
 
 
-@njit(cache=True, nogil=True)
-def _add(r, T, coef, mu, k, l, kind, out, H, hrow, C, crow, dint, dcm, n, fill):
+@njit(cache=True, nogil=True, inline="always")
+def _add(r, T2, coef, mu, k, l, kind, out, H, hrow, C, crow, dint, dcm, n):
     """One term: into the primitive's tables (coef/μ) or, for a small |μ|·T, the direct list.
     Returns the direct list's new length."""
-    if abs(mu) * T >= DIRECT_MU_T:
+    if (mu.real * mu.real + mu.imag * mu.imag) * T2 >= DIRECT_MU_T * DIRECT_MU_T:
         if kind <= T_AC:
             H[r, hrow, k] += coef / mu
         else:
             C[r, crow, k, l] += coef / mu
         return n
-    if fill:
-        dint[r, n, 0] = k
-        dint[r, n, 1] = l
-        dint[r, n, 2] = kind
-        dint[r, n, 3] = out
-        dcm[r, n, 0] = coef
-        dcm[r, n, 1] = mu
+    dint[r, n, 0] = k
+    dint[r, n, 1] = l
+    dint[r, n, 2] = kind
+    dint[r, n, 3] = out
+    dcm[r, n, 0] = coef
+    dcm[r, n, 1] = mu
     return n + 1
 
 
 @njit(cache=True, nogil=True)
-def _terms(r, lam, RV, nk, gamma, H, C, dint, dcm, fill):
-    """Walk regime r's terms (see the module's docstring); returns how many are direct."""
+def _terms(r, lam, RV, nk, gamma, H, C, dint, dcm):
+    """Sort regime r's terms (see the module's docstring); returns how many are direct."""
     T = 2.0 * math.pi / gamma
+    T2 = T * T
     n = 0
     for k in range(nk):
         lk = lam[r, k]
         for o in range(2):
             row = R_S if o == 0 else R_SB
             c = 0.5 * RV[r, row, k]
-            n = _add(r, T, c, lk - 1j * gamma, k, k, T_A, o, H, 2 * o, C, 0, dint, dcm, n, fill)
-            n = _add(r, T, c.conjugate(), lk.conjugate() - 1j * gamma, k, k, T_AC, o, H,
-                     2 * o + 1, C, 0, dint, dcm, n, fill)  # fmt: skip
+            n = _add(r, T2, c, lk - 1j * gamma, k, k, T_A, o, H, 2 * o, C, 0, dint, dcm, n)
+            n = _add(r, T2, c.conjugate(), lk.conjugate() - 1j * gamma, k, k, T_AC, o, H,
+                     2 * o + 1, C, 0, dint, dcm, n)  # fmt: skip
     for k in range(nk):
         dk = RV[r, R_SD, k]
         bk = RV[r, R_SBD, k]
@@ -103,10 +103,10 @@ def _terms(r, lam, RV, nk, gamma, H, C, dint, dcm, fill):
                 vvb = dk * dl.conjugate()
                 vba = 0.5 * (bk * dl + bl * dk)
                 vbb = 0.5 * (bk * dl.conjugate() + bl.conjugate() * dk)
-            n = _add(r, T, vva, mua, k, l, T_AA, OUT_VV, H, 0, C, 0, dint, dcm, n, fill)
-            n = _add(r, T, vvb, mub, k, l, T_AAC, OUT_VV, H, 0, C, 1, dint, dcm, n, fill)
-            n = _add(r, T, vba, mua, k, l, T_AA, OUT_VB, H, 0, C, 2, dint, dcm, n, fill)
-            n = _add(r, T, vbb, mub, k, l, T_AAC, OUT_VB, H, 0, C, 3, dint, dcm, n, fill)
+            n = _add(r, T2, vva, mua, k, l, T_AA, OUT_VV, H, 0, C, 0, dint, dcm, n)
+            n = _add(r, T2, vvb, mub, k, l, T_AAC, OUT_VV, H, 0, C, 1, dint, dcm, n)
+            n = _add(r, T2, vba, mua, k, l, T_AA, OUT_VB, H, 0, C, 2, dint, dcm, n)
+            n = _add(r, T2, vbb, mub, k, l, T_AAC, OUT_VB, H, 0, C, 3, dint, dcm, n)
     return n
 
 
@@ -115,28 +115,22 @@ def measure_tables(lam, RV, nk, gamma):
     """The primitive's tables of the three regimes (regime 2 is regime 1's): ``H`` (3, 4, nz)
     complex, rows α- and ᾱ-coefficients of the s harmonic, then of s_b's; ``C`` (3, 4, nz, nz)
     complex over pairs k ≤ l, rows α_kα_l and α_kᾱ_l of ∫ṡ², then of ∫ṡ_b ṡ; and the direct
-    terms: ``dint`` (3, n, 4) (k, l, kind, output), ``dcm`` (3, n, 2) (coefficient, rate) and
-    their counts ``nd``."""
+    terms: ``dint`` (3, ·, 4) (k, l, kind, output), ``dcm`` (3, ·, 2) (coefficient, rate), the
+    first ``nd[r]`` rows of regime r."""
     nz = lam.shape[1]
     H = np.zeros((3, 4, nz), dtype=np.complex128)
     C = np.zeros((3, 4, nz, nz), dtype=np.complex128)
     nd = np.zeros(3, dtype=np.int64)
-    dint = np.zeros((3, 0, 4), dtype=np.int64)
-    dcm = np.zeros((3, 0, 2), dtype=np.complex128)
+    most = 4 * nz + 2 * nz * (nz + 1)  # every term of a regime
+    dint = np.empty((3, most, 4), dtype=np.int64)
+    dcm = np.empty((3, most, 2), dtype=np.complex128)
     for r in range(2):
-        nd[r] = _terms(r, lam, RV, nk[r], gamma, H, C, dint, dcm, False)
+        nd[r] = _terms(r, lam, RV, nk[r], gamma, H, C, dint, dcm)
     nd[2] = nd[1]
-    m = max(nd[0], nd[1])
-    dint = np.zeros((3, m, 4), dtype=np.int64)
-    dcm = np.zeros((3, m, 2), dtype=np.complex128)
-    H[:] = 0.0
-    C[:] = 0.0
-    for r in range(2):
-        _terms(r, lam, RV, nk[r], gamma, H, C, dint, dcm, True)
     H[2] = H[1]
     C[2] = C[1]
-    dint[2] = dint[1]
-    dcm[2] = dcm[1]
+    dint[2, : nd[1]] = dint[1, : nd[1]]
+    dcm[2, : nd[1]] = dcm[1, : nd[1]]
     return H, C, dint, dcm, nd
 
 
