@@ -51,9 +51,7 @@ TINY = 1e-200
 # Round-off allowance of the cheap test, relative to the size of the sums it evaluates.
 PAD = 1e-12
 
-# Reassociation lets LLVM vectorise the small dot products and matrix-vector products (a
-# different summation order, never NaN/inf assumptions).
-FAST = {"reassoc", "contract"}
+FAST = pm.FAST
 
 # kernel state entries (after the common ones of measure.py)
 K_REGIME = ms.K_METHOD  # 0 free, 1/2 stuck on stop 1/2

@@ -49,6 +49,9 @@ T_AC = 1
 T_AA = 2
 T_AAC = 3
 
+# numba's fastmath flags of the event solver's small dot products and matrix-vector products
+# (kernel.py too): reassociation lets LLVM vectorise them (a different summation order, never
+# NaN/inf assumptions).
 FAST = {"reassoc", "contract"}
 
 
