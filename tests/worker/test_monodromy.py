@@ -100,26 +100,48 @@ def test_the_replay_covers_sticking_and_releases():
     assert (kinds == 1).sum() >= 2 and (kinds == 2).sum() >= 2  # impacts, and releases
 
 
-def test_an_orbit_that_starts_on_a_stop_has_no_exact_matrix():
-    # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit whose start has the tip on a stop,
-    # where the map is one-sided; the engine's finite differences find no Jacobian either
+def test_an_orbit_that_starts_stuck_on_a_stop_gets_the_matrix_at_its_first_release():
+    # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit whose start has the tip stuck on a
+    # stop. The map at τ = 0 is one-sided (no state may move into the stop), so the replay
+    # moves the section to the first release. Its spectral radius is the orbit's: central
+    # differences along the constraint at τ = 0 (the tip held on the stop, at rest) converge
+    # to it. (Before, neither the replay nor the engine's finite differences gave one.)
     p = cell(theta=0.2, g1=0.1, g2=0.1, gamma_r=0.94)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 21
+    x, n = np.asarray(r.final_state), 21
     run = event_run(p)
-    run.reset(np.asarray(r.final_state))
-    assert run.kst[ek.K_PENDING] != 0.0 or run.kst[ek.K_SKIP_ON] != 0.0
-    assert exact(run, np.asarray(r.final_state), 21) is None
-    assert r.floquet_multiplier is None
+    run.reset(x)
+    assert run.kst[ek.K_PENDING] > 0.0 and run.kst[ek.K_SKIP_ON] == 0.0
+    J = exact(run, x, n)
+    assert J is not None
+    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
+    s = assemble(p)
+    N = s.ndof
+    C = np.zeros((2, 2 * N))
+    C[0, :N] = s.W
+    C[1, N:] = s.W
+    Z = np.linalg.svd(C)[2][2:].T  # the constraint's tangent space: W δu = W δq = 0
+    errors = []
+    for rel in (1e-5, 1e-6, 1e-7):
+        h = rel * np.max(np.abs(x))
+        D = np.column_stack([
+            (period_map(run, x + h * z, n) - period_map(run, x - h * z, n)) / (2.0 * h) for z in Z.T
+        ])  # fmt: skip
+        assert np.max(np.abs(C @ D)) < 1e-6  # the orbit ends stuck: the image stays on it
+        errors.append(abs(np.max(np.abs(np.linalg.eigvals(Z.T @ D))) - rho))
+    assert errors[0] > errors[1] > errors[2] and errors[2] < 1e-6 * rho
+    assert r.floquet_multiplier == pytest.approx(rho, rel=1e-12)
 
 
-def _replay(run: EventRun, x: np.ndarray, evlog: np.ndarray, x_end: np.ndarray) -> int:
+def _replay(run: EventRun, x: np.ndarray, evlog: np.ndarray, x_end: np.ndarray,
+            from_stop: bool = False) -> int:  # fmt: skip
     p = run.sys.params
     ea = run.ea
     out = np.zeros((run.nx, run.nx))
     return mono.monodromy(evlog, len(evlog), x, x_end, run.f_scale, 2 * np.pi / p.gamma_r, 1, 0,
                           ea.lam, ea.V, ea.Vi, ea.nk, ea.R, ea.Pin, ea.Qout, run.minvx,
-                          run.sys.G, p.g1, p.g2, run.sys.ndof, out)  # fmt: skip
+                          run.sys.G, p.g1, p.g2, run.sys.ndof, from_stop, out)  # fmt: skip
 
 
 def test_the_replay_refuses_a_log_it_cannot_account_for():
@@ -138,3 +160,6 @@ def test_the_replay_refuses_a_log_it_cannot_account_for():
     away = log.copy()
     away[0, 2] = 3.0 - away[0, 2]
     assert _replay(run, x, away, end) == mono.M_GRAZING
+    # taken as starting stuck on a stop: its first impact is not at τ = 0
+    assert log[0, 0] > 0.0
+    assert _replay(run, x, log, end, from_stop=True) == mono.M_FROM_STOP

@@ -632,7 +632,8 @@ class _Engine:
         (``fx0``: the state p periods after it): the spectral radius of the monodromy matrix,
         the p-period map's Jacobian, by forward differences of ``nx`` unmeasured side runs
         (the caller saves/restores the run): for methods without an exact matrix, orbits that
-        start on a stop, and radii of 1 or more. None where the map is not smooth at ``x0``: a
+        start leaving a stop (or on one they are not stuck on until a release), and radii of
+        1 or more. None where the map is not smooth at ``x0``: a
         perturbed run has other impacts than the orbit (``impacts`` over p periods), or a
         radius of 1 or more is not reproduced with ten times the step (a jump of the map, a
         sticking or grazing contact, makes the differences grow like 1/step); inf when the

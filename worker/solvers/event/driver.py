@@ -131,11 +131,14 @@ class EventRun(KernelRun):
                  samples: np.ndarray) -> tuple[np.ndarray | None, int, int]:  # fmt: skip
         """:meth:`KernelRun.run_from`; the exact monodromy matrix (``monodromy.py``) replays the
         run's event log through the regimes' propagators and the impacts' saltation matrices.
-        None where the orbit starts on a stop (the map is one-sided there), a history is being
-        recorded (left alone), the log overflows or the replay refuses."""
+        An orbit that starts with the tip on a stop moving into it (an impact at τ = 0) gets
+        the matrix at its first release instead (the same multipliers; the map is one-sided at
+        τ = 0), if it is stuck there until then. None for one that starts leaving a stop, where
+        a history is being recorded (left alone), the log overflows or the replay refuses."""
         self.reset(x0)
         exact = exact and self.hist.shape[0] == 0
-        if self.kst[ek.K_PENDING] != 0.0 or self.kst[ek.K_SKIP_ON] != 0.0:
+        from_stop = self.kst[ek.K_PENDING] > 0.0
+        if self.kst[ek.K_PENDING] < 0.0 or self.kst[ek.K_SKIP_ON] != 0.0:
             exact = False
         kept = self.evlog
         if exact:
@@ -151,7 +154,7 @@ class EventRun(KernelRun):
             status = mono.monodromy(
                 self.evlog, count, x0, self.x, self.f_scale, 2.0 * np.pi / p.gamma_r, n,
                 int(self.kst[ek.K_REGIME]), ea.lam, ea.V, ea.Vi, ea.nk, ea.R, ea.Pin, ea.Qout,
-                self.minvx, self.sys.G, p.g1, p.g2, self.sys.ndof, J,
+                self.minvx, self.sys.G, p.g1, p.g2, self.sys.ndof, from_stop, J,
             )  # fmt: skip
             return (J if status == mono.M_OK else None), done, code
         finally:

@@ -19,11 +19,16 @@ runs (``nx`` = 12 for 5 modes), and the matrix is exact to round-off where the d
 truncation error (forward differences with a relative step of 1e-7: up to 9.5e-3 in the largest
 multiplier at Figure 5's orbits; central differences converge to this matrix).
 
+An orbit that starts with the tip stuck on a stop (at τ = 0 the map is one-sided: no state
+may move into the stop) gets the matrix at its first release instead, where the motion is free;
+it has the same multipliers (``monodromy``'s ``from_stop``). Central differences along the
+constraint at τ = 0 converge to its spectral radius.
+
 The replay refuses (and the caller falls back on finite differences) where the p-period map has
-no such Jacobian or this replay does not cover it: an orbit that starts on a stop (the map is
-one-sided there), an impact without a speed of approach (grazing, or the repeated impact of a
-tip that neither sticks nor leaves), an event log that does not match the regimes, or a replay
-whose end state differs from the run's.
+no such Jacobian or this replay does not cover it: an orbit that starts leaving a stop or on a
+stop it does not stay stuck on until a release, an impact without a speed of approach (grazing,
+or the repeated impact of a tip that neither sticks nor leaves), an event log that does not
+match the regimes, or a replay whose end state differs from the run's.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ M_RELEASE = 3  # a release from a stop the tip was not stuck on
 M_END_REGIME = 4  # the replay ends in another regime than the run
 M_END_STATE = 5  # the replay's end state differs from the run's
 M_NOT_FINITE = 6  # the matrix is not finite
+M_FROM_STOP = 7  # the orbit starts on a stop but not stuck there until a release
 
 # An impact whose speed of approach is below this fraction of the velocities' size is taken as
 # grazing: the saltation matrix divides by that speed.
@@ -105,11 +111,18 @@ def _mat_mat(A, B, n, m, q, out):
 
 @njit(cache=True, nogil=True)
 def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pin, Qout, MinvX,
-              G, g1, g2, N, out):  # fmt: skip
+              G, g1, g2, N, from_stop, out):  # fmt: skip
     """Replay the ``n_ev`` logged events ``ev`` (rows τ, kind, stop, …) of a run of ``p``
     periods of length ``T`` from the free state ``x0`` at τ = 0, which ended at ``x_end`` in
     regime ``reg_end``: the p-period map's Jacobian into ``out`` (nx × nx). Returns ``M_OK`` or
-    the code of why there is none (``M_*``)."""
+    the code of why there is none (``M_*``).
+
+    ``from_stop``: the orbit starts with the tip stuck on a stop (the run's first event is its
+    impact at τ = 0, without a speed of approach), where the map at τ = 0 is one-sided. The
+    section is then moved to the first release t_r: the Jacobian is that of the map from
+    t_r to t_r + pT, where the motion is free and the map smooth. The two maps are the
+    products of the same two pieces in the other order (``BA`` and ``AB``), so they have the
+    same nonzero eigenvalues: the same Floquet multipliers."""
     nx = 2 * N
     nzm = nx + 2
     ny = nzm - 1
@@ -133,9 +146,37 @@ def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pi
         J[i, i] = 1.0
     reg = 0
     t_prev = 0.0
-    for i in range(n_ev + 1):
+    first = 0
+    t_end = p * T
+    z_start = np.zeros(nzm)
+    if from_stop:
+        k = int(ev[0, 2])
+        # stuck from τ = 0 to a release of that stop, and stuck there again at the end
+        if n_ev < 2 or ev[0, 0] != 0.0 or int(ev[0, 1]) != 1:
+            return M_FROM_STOP
+        if int(ev[1, 1]) != 2 or int(ev[1, 2]) != k:
+            return M_FROM_STOP
+        if reg_end != k:
+            return M_FROM_STOP
+        # the state at the first release: stuck from τ = 0 (the impact map there zeroes a
+        # velocity that is already zero), propagated in the stuck regime
+        v = 0.0
+        for j in range(nzm):
+            v += R[0, R_WD, j] * z[j]
+        for j in range(N):
+            z[N + j] -= MinvX[j] * v / G
+        _mat_vec(Pin[k - 1], z, ny, nzm, y)
+        y[ny - 1] = g1 if k == 1 else -g2
+        _propagator(lam, V, Vi, k, nk[k], ny, ev[1, 0], e, P)
+        _mat_vec(P, y, ny, ny, yt)
+        _mat_vec(Qout[k - 1], yt, nzm, ny, z)
+        z_start[:] = z
+        t_prev = ev[1, 0]
+        first = 2
+        t_end = p * T + t_prev
+    for i in range(first, n_ev + 1):
         last = i == n_ev
-        tau = p * T if last else ev[i, 0]
+        tau = t_end if last else ev[i, 0]
         dt = tau - t_prev
         t_prev = tau
         # the regime's exact propagator up to the event
@@ -220,8 +261,10 @@ def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pi
     size = 0.0
     diff = 0.0
     for i in range(nx):
-        size = max(size, abs(x_end[i]))
-        diff = max(diff, abs(z[i] - x_end[i]))
+        # from a stop, the replay ends p periods after the first release: at its start again
+        want = z_start[i] if from_stop else x_end[i]
+        size = max(size, abs(want))
+        diff = max(diff, abs(z[i] - want))
     if not diff <= END_TOL * size:
         return M_END_STATE
     for i in range(nx):
@@ -246,4 +289,4 @@ def compile_monodromy() -> None:
     monodromy(np.zeros((1, 5)), 0, np.zeros(2), np.zeros(2), 1.0, 1.0, 1, 0, lam, V, V.copy(),
               np.full(3, nzm - 1, dtype=np.int64), np.zeros((3, 8, nzm)),
               np.zeros((2, nzm - 1, nzm)), np.zeros((2, nzm, nzm - 1)), np.zeros(N), 1.0, 1.0,
-              1.0, N, np.zeros((2, 2)))  # fmt: skip
+              1.0, N, False, np.zeros((2, 2)))  # fmt: skip
