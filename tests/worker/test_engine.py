@@ -228,19 +228,24 @@ def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
 
 
 def test_an_orbit_where_the_map_jumps_is_reported_once_the_trajectory_reaches_it():
-    # θ 1, σ 0.1, gap 0.1, γ_r 5.312 (work-precision spectrum C): the differences of the
-    # period map at this orbit grow like 1/step (1.4e4 at 1e-7 of the state, 1.4e3 at 1e-6): a
-    # jump, not a multiplier, so the orbit's attraction is not proven. Solver version 8
-    # reported it as soon as it was extrapolated (period 100, the trajectory still 1e-3 away);
-    # now it waits until the trajectory has been a hundred times closer at three returns in a
-    # row, and reports the extrapolated start.
+    # θ 1, σ 0.1, gap 0.1, γ_r 5.312 (work-precision spectrum C): the orbit starts with the
+    # tip stuck on a stop, and the engine's differences of the period map there grow like
+    # 1/step (1.4e4 at 1e-7 of the state, 1.4e3 at 1e-6: perturbations off the stop, where the
+    # map is one-sided), so the orbit's attraction is not proven. Solver version 8 reported it
+    # as soon as it was extrapolated (period 100, the trajectory still 1e-3 away); now it waits
+    # until the trajectory has been a hundred times closer at three returns in a row, and
+    # reports the extrapolated start, with the exact matrix's multiplier (at the orbit's first
+    # release, solver version 13; none before): central differences along the stop agree.
     p = CellParams(theta=1.0, sigma=0.1, coupling="paper", gamma_s=1.0, gamma_r=5.311864,
                    xi=0.05, g1=0.1, g2=0.1)  # fmt: skip
     r = simulate_point(p)
     plain = simulate_point(p, SolverSettings(extrapolate=False))
     assert r.outcome == plain.outcome == "periodic" and r.response_period == 1
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
-    assert r.floquet_multiplier is None  # no Jacobian, no multiplier
+    x = np.asarray(r.final_state)
+    # (two periods: a budget of one is refused; the 2-period map's radius is its square)
+    two = monodromy_radius(p, x, 2, 1e-7, True)
+    assert r.floquet_multiplier**2 == pytest.approx(two, rel=1e-6)
     # the trajectory itself, run as far as the engine ran it, ends near the reported orbit
     x = np.asarray(r.final_state)
     run = simulate_point(p, SolverSettings(early_stop=False, max_periods=r.steady_period,
@@ -314,21 +319,28 @@ def test_the_floquet_multiplier_is_the_rate_at_which_the_orbit_attracts(kw):
                                                  abs=0.01)  # fmt: skip
 
 
-def monodromy_radius(p: CellParams, x: np.ndarray, q: int, rel: float = 1e-6) -> float:
+def monodromy_radius(p: CellParams, x: np.ndarray, q: int, rel: float = 1e-6,
+                     on_stop: bool = False) -> float:  # fmt: skip
     """The spectral radius of the q-period map's Jacobian at ``x`` by central differences of
-    whole runs from perturbed starts (the engine uses forward differences of its kernel)."""
+    whole runs from perturbed starts (the engine uses forward differences of its kernel).
+    ``on_stop``: ``x`` has the tip stuck on a stop, where the map is one-sided; perturbed
+    along the constraint only (the tip held there at rest: W δu = W δq = 0), whose image
+    stays on it."""
     q_periods = SolverSettings(early_stop=False, max_periods=q, window=1)
     h = rel * np.max(np.abs(x))
 
     def after(y: np.ndarray) -> np.ndarray:
         return np.asarray(simulate_point(p, q_periods, initial_state=y).final_state)
 
-    J = np.empty((x.size, x.size))
-    for i in range(x.size):
-        e = np.zeros(x.size)
-        e[i] = h
-        J[:, i] = (after(x + e) - after(x - e)) / (2.0 * h)
-    return float(np.max(np.abs(np.linalg.eigvals(J))))
+    basis = np.eye(x.size)
+    if on_stop:
+        s = assemble(p)
+        C = np.zeros((2, x.size))
+        C[0, : s.ndof] = s.W
+        C[1, s.ndof :] = s.W
+        basis = np.linalg.svd(C)[2][2:].T
+    D = np.column_stack([(after(x + h * e) - after(x - h * e)) / (2.0 * h) for e in basis.T])
+    return float(np.max(np.abs(np.linalg.eigvals(basis.T @ D))))
 
 
 def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
@@ -344,14 +356,17 @@ def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
 
 
 def test_no_multiplier_stands_in_where_none_was_computed():
+    # Any orbit of a fixed budget (early stop off), which runs nothing beyond it, has none.
     # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit reached by itself that starts with
-    # the tip on a stop (no exact matrix: the map is one-sided there) and where a perturbed run
-    # has other impacts (no finite-difference Jacobian); and any orbit of a fixed budget (early
-    # stop off), which runs nothing beyond it. Up to solver version 9 the sequence's contraction
-    # stood in as the multiplier (0.187 at the first).
-    r = simulate_point(cell(gamma_r=0.94, theta=0.2, g1=0.1, g2=0.1))
+    # the tip stuck on a stop, where a perturbed run has other impacts (no finite-difference
+    # Jacobian). Up to solver version 9 the sequence's contraction stood in as the multiplier
+    # (0.187); versions 10-12 had none; since 13 the exact matrix at its first release gives
+    # it, and central differences along the stop agree.
+    p = cell(gamma_r=0.94, theta=0.2, g1=0.1, g2=0.1)
+    r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 21
-    assert r.floquet_multiplier is None
+    x = np.asarray(r.final_state)
+    assert r.floquet_multiplier == pytest.approx(monodromy_radius(p, x, 21, 1e-7, True), rel=1e-6)
     fixed = simulate_point(cell(gamma_r=2.05), SolverSettings(early_stop=False, max_periods=600))
     assert fixed.outcome == "periodic" and fixed.floquet_multiplier is None
 

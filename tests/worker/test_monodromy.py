@@ -45,8 +45,14 @@ def central_jacobian(run: EventRun, x: np.ndarray, n: int, rel: float) -> np.nda
     return J
 
 
-def exact(run: EventRun, x: np.ndarray, n: int) -> np.ndarray | None:
-    return run.run_from(x, n, False, True, np.zeros((n, ms.ROW)), np.zeros((n, run.nx)))[0]
+def exact(run: EventRun, x: np.ndarray, n: int, shifted: bool = False) -> np.ndarray | None:
+    """The exact matrix of the n-period map at x (None without one); ``shifted``: taken at the
+    orbit's first release (it starts stuck on a stop), else at x."""
+    got = run.run_from(x, n, False, True, np.zeros((n, ms.ROW)), np.zeros((n, run.nx)))[0]
+    if got is None:
+        return None
+    assert got.shifted == shifted
+    return got.matrix
 
 
 # Figure 5's cells and the full coupling (contact force along M⁻¹X ≠ Wᵀ): period-1 orbits that
@@ -113,7 +119,7 @@ def test_an_orbit_that_starts_stuck_on_a_stop_gets_the_matrix_at_its_first_relea
     run = event_run(p)
     run.reset(x)
     assert run.kst[ek.K_PENDING] > 0.0 and run.kst[ek.K_SKIP_ON] == 0.0
-    J = exact(run, x, n)
+    J = exact(run, x, n, shifted=True)
     assert J is not None
     rho = float(np.max(np.abs(np.linalg.eigvals(J))))
     s = assemble(p)

@@ -9,6 +9,8 @@ returns a :class:`KernelRun`. The engine drives it: ``reset`` to a state at forc
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from worker.model import System
@@ -17,7 +19,16 @@ from worker.solvers import measure as ms
 from worker.solvers.linear import LinearTail
 from worker.solvers.settings import SolverSettings
 
-__all__ = ["KernelRun"]
+__all__ = ["ExactMonodromy", "KernelRun"]
+
+
+class ExactMonodromy(NamedTuple):
+    """A method's exact monodromy matrix of an orbit (``KernelRun.run_from``)."""
+
+    matrix: np.ndarray  # nx × nx
+    # the section was moved from τ = 0 to the orbit's first release: it starts stuck on a stop,
+    # where the map at τ = 0 is one-sided (the same multipliers)
+    shifted: bool
 
 
 class KernelRun:
@@ -142,7 +153,7 @@ class KernelRun:
         """Compile what the method's points reach only late (``simulate.warm_up``)."""
 
     def run_from(self, x0: np.ndarray, n: int, measure: bool, exact: bool, rows: np.ndarray,
-                 samples: np.ndarray) -> tuple[np.ndarray | None, int, int]:  # fmt: skip
+                 samples: np.ndarray) -> tuple[ExactMonodromy | None, int, int]:  # fmt: skip
         """Run up to n periods from the state ``x0`` (period count cleared; the caller
         saves/restores the run) and, with ``exact``, the n-period map's exact Jacobian at
         ``x0`` where the method has one; returns (the matrix or None, periods done, ``END_*``

@@ -53,7 +53,7 @@ import functools
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -62,7 +62,7 @@ from worker.model import SteadyState, System, pinned_max_re
 from worker.numba_cache import on_disk
 from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittance_db
 from worker.solvers import measure as ms
-from worker.solvers.base import KernelRun
+from worker.solvers.base import ExactMonodromy, KernelRun
 from worker.solvers.linear import LinearTail
 from worker.solvers.settings import (
     OVER_STEPS,
@@ -320,6 +320,15 @@ def _push_recent(recent: np.ndarray, imp: np.ndarray, reg: np.ndarray, rows: np.
         reg[size - k + i] = rows[src, ms.M_REGIME]
 
 
+def _exact_radius(exact: ExactMonodromy | None) -> float | None:
+    """The spectral radius of a method's exact monodromy matrix (None without one, or where
+    its eigenvalues are not finite)."""
+    if exact is None:
+        return None
+    ev = np.linalg.eigvals(exact.matrix)
+    return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
+
+
 def _impacts(rows: np.ndarray) -> float:
     """Impacts on both stops over the periods of ``rows`` (whole numbers: sums are exact)."""
     return float(rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum())
@@ -418,6 +427,9 @@ class _Orbit:
 class _Pending:
     orbit: _Orbit  # confirmed, but its attraction not proven (the map is not smooth there)
     found_at: float  # the trajectory's distance to it when it was confirmed
+    # the exact matrix's spectral radius where it exists but did not decide (an orbit that
+    # starts stuck on a stop): reported once the trajectory has reached the orbit
+    exact: float | None = None
 
 
 class _Engine:
@@ -478,7 +490,8 @@ class _Engine:
         self.period += n
 
     def _side_run(self, x0: np.ndarray, n: int, measure: bool = True,
-                  exact: bool = False) -> tuple[np.ndarray, np.ndarray, object] | None:  # fmt: skip
+                  exact: bool = False,
+                  ) -> tuple[np.ndarray, np.ndarray, ExactMonodromy | None] | None:  # fmt: skip
         """Integrate n periods from x0, measured unless told otherwise; with ``exact`` the
         method's exact monodromy matrix of the same run where it has one (else None). Returns
         (rows, samples, matrix), or None if the run stopped (the caller saves/restores the
@@ -604,7 +617,8 @@ class _Engine:
             self.run.restore(snap)
 
     def _multiplier(self, x0: np.ndarray, q: int, fx0: np.ndarray, impacts: float,
-                    exact: np.ndarray | None, check: bool = True) -> float | None:  # fmt: skip
+                    exact: ExactMonodromy | None, check: bool = True,
+                    decides: bool = False) -> float | None:  # fmt: skip
         """The dominant Floquet multiplier of the q-periodic orbit through ``x0``: at zero gaps
         the pinned system's exact one, at no cost (:meth:`_pinned_multiplier`; side runs would
         only find a perturbed tip leaving the stops); else the spectral radius of ``exact``,
@@ -613,18 +627,25 @@ class _Engine:
         (:meth:`_monodromy_radius`: None without a Jacobian, inf over the point's limits);
         else None. Nothing runs with early stop off (a fixed budget, as the paper's scheme).
         A radius of 1 or more is left to the finite differences, which tell an unstable orbit
-        from a map that is not smooth (as before the exact matrix)."""
+        from a map that is not smooth (as before the exact matrix).
+
+        ``decides``: the multiplier decides whether an extrapolated orbit is reported now.
+        For an orbit that starts stuck on a stop (the matrix at its first release) the finite
+        differences still decide, as before that matrix: where they find no Jacobian the
+        orbit waits until the trajectory reaches it (which kept a stable orbit beside a
+        chaotic trajectory from being reported); where they find it attracting, the exact
+        radius is the value."""
         if self.pinned_re is not None:
             return self._pinned_multiplier(q)
         if not self.s.early_stop:
             return None
-        if exact is not None:
-            ev = np.linalg.eigvals(exact)
-            if np.all(np.isfinite(ev)):
-                lam = float(np.max(np.abs(ev)))
-                if lam < 1.0:
-                    return lam
-        return self._monodromy_radius(x0, q, fx0, impacts) if check else None
+        radius = _exact_radius(exact)
+        if radius is not None and radius < 1.0 and not (decides and exact.shifted):
+            return radius
+        lam = self._monodromy_radius(x0, q, fx0, impacts) if check else None
+        if radius is not None and radius < 1.0 and lam is not None and lam < 1.0:
+            return radius
+        return lam
 
     def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
                           impacts: float) -> float | None:  # fmt: skip
@@ -706,16 +727,15 @@ class _Engine:
         """A pending orbit the trajectory has reached: it is on the orbit to
         ``slack·periodicity_tol`` (1: what a sequence that repeats by itself must show), or
         it has been ``REACH_SHRINK`` times closer than when the orbit was confirmed at its
-        last ``REACH_HOLD`` returns (it is attracted there, not passing by). It has no
-        multiplier: there is no Jacobian."""
+        last ``REACH_HOLD`` returns (it is attracted there, not passing by). Its multiplier is
+        the exact matrix's where there is one (an orbit that starts stuck on a stop), else none:
+        there is no Jacobian."""
         for pend in self.pending:
             o = pend.orbit
             near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
-            if self._distance(o) <= near:
-                return o
             back = self._returns(o, REACH_HOLD)
-            if back and max(back) <= pend.found_at / REACH_SHRINK:
-                return o
+            if self._distance(o) <= near or (back and max(back) <= pend.found_at / REACH_SHRINK):
+                return replace(o, multiplier=pend.exact)
         return None
 
     def _approaching(self) -> _Orbit | None:
@@ -794,14 +814,19 @@ class _Engine:
                             got = self._side_run(xs, q, measure=False, exact=True)
                             J = None if got is None else got[2]
                         lam = self._multiplier(xs, q, measured[1][q - 1],
-                                               _impacts(measured[0][:q]), J)  # fmt: skip
+                                               _impacts(measured[0][:q]), J,
+                                               decides=True)  # fmt: skip
                         orbit = _Orbit(xs.copy(), measured[0], q, lam)
                         if lam is not None and lam < 1.0:
                             return orbit
                         # unstable, or its attraction not proven: not checked again
                         self.tried.append(measured[1][:q].copy())
                         if lam is None:
-                            self.pending.append(_Pending(orbit, self._distance(orbit)))
+                            radius = _exact_radius(J)
+                            self.pending.append(_Pending(
+                                orbit, self._distance(orbit),
+                                radius if radius is not None and radius < 1.0 else None,
+                            ))  # fmt: skip
                         return None
                     return None
                 if r > 0.5 * r_prev:

@@ -6,7 +6,7 @@ import numpy as np
 
 from worker.model import System
 from worker.solvers import measure as ms
-from worker.solvers.base import KernelRun
+from worker.solvers.base import ExactMonodromy, KernelRun
 from worker.solvers.event import kernel as ek
 from worker.solvers.event import monodromy as mono
 from worker.solvers.event import primitives as pm
@@ -128,7 +128,7 @@ class EventRun(KernelRun):
         )  # fmt: skip
 
     def run_from(self, x0: np.ndarray, n: int, measure: bool, exact: bool, rows: np.ndarray,
-                 samples: np.ndarray) -> tuple[np.ndarray | None, int, int]:  # fmt: skip
+                 samples: np.ndarray) -> tuple[ExactMonodromy | None, int, int]:  # fmt: skip
         """:meth:`KernelRun.run_from`; the exact monodromy matrix (``monodromy.py``) replays the
         run's event log through the regimes' propagators and the impacts' saltation matrices.
         An orbit that starts with the tip on a stop moving into it (an impact at τ = 0) gets
@@ -156,7 +156,9 @@ class EventRun(KernelRun):
                 int(self.kst[ek.K_REGIME]), ea.lam, ea.V, ea.Vi, ea.nk, ea.R, ea.Pin, ea.Qout,
                 self.minvx, self.sys.G, p.g1, p.g2, self.sys.ndof, from_stop, J,
             )  # fmt: skip
-            return (J if status == mono.M_OK else None), done, code
+            if status != mono.M_OK:
+                return None, done, code
+            return ExactMonodromy(J, bool(from_stop)), done, code
         finally:
             self.evlog = kept
 
