@@ -110,6 +110,17 @@ def _mat_mat(A, B, n, m, q, out):
 
 
 @njit(cache=True, nogil=True)
+def _impact_map(R, MinvX, G, N, nzm, z):
+    """z ← R z: the plastic impact's impulse along M⁻¹X that zeroes the tip's velocity W q
+    (a state, or a vector field at the impact)."""
+    v = 0.0
+    for j in range(nzm):
+        v += R[0, R_WD, j] * z[j]
+    for j in range(N):
+        z[N + j] -= MinvX[j] * v / G
+
+
+@njit(cache=True, nogil=True)
 def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pin, Qout, MinvX,
               G, g1, g2, N, from_stop, out):  # fmt: skip
     """Replay the ``n_ev`` logged events ``ev`` (rows τ, kind, stop, …) of a run of ``p``
@@ -160,11 +171,7 @@ def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pi
             return M_FROM_STOP
         # the state at the first release: stuck from τ = 0 (the impact map there zeroes a
         # velocity that is already zero), propagated in the stuck regime
-        v = 0.0
-        for j in range(nzm):
-            v += R[0, R_WD, j] * z[j]
-        for j in range(N):
-            z[N + j] -= MinvX[j] * v / G
+        _impact_map(R, MinvX, G, N, nzm, z)
         _mat_vec(Pin[k - 1], z, ny, nzm, y)
         y[ny - 1] = g1 if k == 1 else -g2
         _propagator(lam, V, Vi, k, nk[k], ny, ev[1, 0], e, P)
@@ -224,11 +231,7 @@ def monodromy(ev, n_ev, x0, x_end, f_scale, T, p, reg_end, lam, V, Vi, nk, R, Pi
         # z⁺ = R z⁻ (R f⁻ likewise): the impulse along M⁻¹X that zeroes W q
         for j in range(N):
             z[N + j] -= MinvX[j] * v / G
-        wf = 0.0
-        for j in range(nzm):
-            wf += R[0, R_WD, j] * fm[j]
-        for j in range(N):
-            fm[N + j] -= MinvX[j] * wf / G
+        _impact_map(R, MinvX, G, N, nzm, fm)
         if stuck:
             _mat_vec(Pin[stop - 1], z, ny, nzm, y)
             y[ny - 1] = g1 if stop == 1 else -g2  # the stop's position w*
