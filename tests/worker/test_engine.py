@@ -12,6 +12,7 @@ from worker.simulate import SolverSettings, simulate_point
 from worker.solvers import engine
 from worker.solvers import measure as ms
 from worker.solvers.base import ExactMonodromy
+from worker.solvers.dispatch import RUNS
 from worker.solvers.engine import few_windows_factor, mser_stats, rre
 from worker.solvers.linear import linear_tail
 
@@ -52,17 +53,25 @@ def test_newton_lands_on_the_fixed_point_of_an_affine_map_in_one_step():
     x = xstar + 1e-3 * rng.normal(size=n)
     res = (xstar + J @ (x - xstar)) - x  # F(x) - x
     r = float(np.max(np.abs(res)))
-    step, radius = engine._newton_step(ExactMonodromy(J, False), res, r)
+    step = engine._newton_step(ExactMonodromy(J, False), res, r, 0.98)
     np.testing.assert_allclose(x - step, xstar, atol=1e-13)
-    assert radius == pytest.approx(0.98, abs=1e-12)
-    # where it is not to be trusted: no matrix, a shifted section, a near-neutral or unstable
-    # map, a step beyond what the residual allows (another branch, or far from the orbit)
-    assert engine._newton_step(None, res, r) is None
-    assert engine._newton_step(ExactMonodromy(J, True), res, r) is None
-    for top in (0.9995, 1.2):
-        Jn = Q @ np.diag([top, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
-        assert engine._newton_step(ExactMonodromy(Jn, False), res, r) is None
-    assert engine._newton_step(ExactMonodromy(J, False), res, r * 1e-4) is None
+    # where it is not to be trusted: no matrix, a shifted section, J - I singular, a step
+    # beyond what the residual and the contraction allow (another branch, far from the orbit,
+    # or a near-neutral map)
+    assert engine._newton_step(None, res, r, 0.98) is None
+    assert engine._newton_step(ExactMonodromy(J, True), res, r, 0.98) is None
+    Js = Q @ np.diag([1.0, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
+    Js[0] = Js[1] + np.eye(n)[0] - np.eye(n)[1]  # J - I with two equal rows: singular
+    assert engine._newton_step(ExactMonodromy(Js, False), res, r, 0.98) is None
+    assert engine._newton_step(ExactMonodromy(J, False), res, r * 1e-4, 0.98) is None
+    # along the slow mode (0.98) the step is 50 residuals long: within what a sequence that
+    # contracts by 0.98 allows (10 / 0.02), not within what one that contracts by 0.5 does
+    slow = xstar + 1e-3 * Q[:, 0]
+    res_slow = (xstar + J @ (slow - xstar)) - slow
+    r_slow = float(np.max(np.abs(res_slow)))
+    step = engine._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.98)
+    np.testing.assert_allclose(slow - step, xstar, atol=1e-13)
+    assert engine._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.5) is None
 
 
 def test_mser_cuts_the_transient_and_flags_a_trend():
@@ -203,6 +212,34 @@ def test_newton_on_the_exact_matrix_finds_the_orbit_extrapolation_finds_for_less
     assert newton.transmittance_db == pytest.approx(cycles.transmittance_db, abs=1e-9)
     assert newton.floquet_multiplier == pytest.approx(cycles.floquet_multiplier, abs=1e-7)
     assert newton.periods < cycles.periods
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_measuring_a_run_changes_no_state(method):
+    # an extrapolated orbit's confirmation is measured and, when it holds, is the orbit's
+    # measurement (not a second run): that needs a measured run's samples (and, for event,
+    # its exact matrix) to be those of the unmeasured run to the bit
+    p = cell(gamma_r=2.05, coupling="full")
+    s = assemble(p)
+    tail = linear_tail(s, True)
+    run = RUNS[method](s, SolverSettings(method=method), tail, True,
+                       1e6 * max(tail.scale, p.g1, p.g2))  # fmt: skip
+    n = 3
+    x0 = np.zeros(run.nx)
+    x0[: s.ndof] = 0.3 * p.g1  # off rest, so that the three periods impact
+    got = []
+    for measure in (True, False):
+        rows = np.zeros((n, ms.ROW))
+        samples = np.zeros((n, run.nx))
+        J, done, _ = run.run_from(x0, n, measure, True, rows, samples)
+        got.append((samples, J, rows[:, ms.M_IMP1] + rows[:, ms.M_IMP2], done))
+    (s1, J1, imp1, d1), (s2, J2, imp2, d2) = got
+    assert d1 == d2 == n and imp1.sum() > 0
+    assert np.array_equal(s1, s2) and np.array_equal(imp1, imp2)
+    if method == "event":
+        assert J1 is not None and np.array_equal(J1.matrix, J2.matrix)
+    else:
+        assert J1 is None and J2 is None
 
 
 def test_a_slowly_contracting_orbit_is_found_not_claimed_irregular():
