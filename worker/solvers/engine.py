@@ -619,15 +619,15 @@ class _Engine:
 
     def _measure_orbit(self, x0: np.ndarray, p: int) -> _Orbit | None:
         """The orbit the trajectory reached by itself (its samples repeat), measured over p
-        periods from x0. Its multiplier is the exact monodromy matrix's spectral radius where
-        the method has one and it is below 1 (``event``: from the measuring run itself, at no
-        cost); else the finite differences' where the map is smooth and they at
-        most triple the point's cost (``CHECK_COST``); the exact one at zero gaps; else none: no
-        Jacobian, a check too costly, or early stop off (a fixed budget, as the paper's scheme,
-        runs nothing more). Up to solver version 9 the sequence's
-        contraction d_k/d_{k-p} stood in where the check was not run (at most doubling the cost)
-        or the map not smooth: an estimate, at Figure 5's 8 such orbits (periods 18-39) off by
-        up to 0.12 (0.224 for 0.104) or missing."""
+        periods from x0, or from one Newton step closer (:meth:`_polish`). Its multiplier is
+        the exact monodromy matrix's spectral radius where the method has one and it is below 1
+        (``event``: from the measuring run itself, at no cost); else the finite differences'
+        where the map is smooth and they at most triple the point's cost (``CHECK_COST``); the
+        exact one at zero gaps; else none: no Jacobian, a check too costly, or early stop off (a
+        fixed budget, as the paper's scheme, runs nothing more). Up to solver version 9 the
+        sequence's contraction d_k/d_{k-p} stood in where the check was not run (at most
+        doubling the cost) or the map not smooth: an estimate, at Figure 5's 8 such orbits
+        (periods 18-39) off by up to 0.12 (0.224 for 0.104) or missing."""
         snap = self.run.save()
         try:
             got = self._side_run(x0, p, exact=self.s.early_stop)
@@ -652,6 +652,8 @@ class _Engine:
         state at one of its 44 reached orbits)."""
         rows, samples, J = got
         r = _max_diff(samples[-1], x0)
+        # the contraction is not known here (the periodicity test's estimate is what may be
+        # fooled): the loosest bound; the run from the new start decides
         step = _newton_step(J, samples[-1] - x0, r, 0.999)
         if step is None or np.max(np.abs(step)) <= self.s.periodicity_tol * np.max(np.abs(x0)):
             return x0, got
