@@ -839,7 +839,14 @@ class _Engine:
                 r = _max_diff(samples[-1], xs)
                 if _impacts(rows) != blocks[0]:
                     return None  # another branch of the map: not the orbit being approached
-                if r <= self.s.periodicity_tol * scale * (1.0 - rho):
+                # how far the orbit may be: what the residual and the sequence's contraction
+                # allow, and Newton's next step where there is one (it sees a slow mode of the
+                # map that the sequence's Ritz values miss)
+                step = _newton_step(J, samples[-1] - xs, r, rho)
+                far = r / (1.0 - rho)
+                if step is not None:
+                    far = max(far, float(np.max(np.abs(step))))
+                if far <= self.s.periodicity_tol * scale:
                     e = _max_diff(X[-1], xs)
                     # where the trajectory's own contraction is heading (10× slack)
                     if e <= 10.0 * d1 / (1.0 - rho) + self.s.periodicity_tol * scale:
@@ -881,7 +888,6 @@ class _Engine:
                 if r > 0.5 * r_prev:
                     return None  # the cycles stopped converging
                 r_prev = r
-                step = _newton_step(J, samples[-1] - xs, r, rho)
                 if step is not None:
                     fit = (xs - step, rho, 0.0)
                     continue
