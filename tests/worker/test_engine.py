@@ -27,12 +27,20 @@ def cell(**kw) -> CellParams:
 # --------------------------------------------------------------------------- the numerics
 
 
-def test_rre_finds_the_fixed_point_of_an_affine_map_exactly():
-    rng = np.random.default_rng(1)
+def affine_map(seed: int, top: float) -> tuple[np.random.Generator, np.ndarray, np.ndarray,
+                                               np.ndarray]:  # fmt: skip
+    """A random affine map's Jacobian J (eigenvectors Q, dominant eigenvalue ``top``) and
+    fixed point, with the generator that drew them."""
+    rng = np.random.default_rng(seed)
     n = 6
     Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
-    J = Q @ np.diag([0.95, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
-    xstar = rng.normal(size=n)
+    J = Q @ np.diag([top, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
+    return rng, Q, J, rng.normal(size=n)
+
+
+def test_rre_finds_the_fixed_point_of_an_affine_map_exactly():
+    rng, _, J, xstar = affine_map(1, 0.95)
+    n = xstar.size
     x = [xstar + rng.normal(size=n)]
     for _ in range(n + 1):
         x.append(xstar + J @ (x[-1] - xstar))
@@ -45,11 +53,8 @@ def test_rre_finds_the_fixed_point_of_an_affine_map_exactly():
 
 
 def test_newton_lands_on_the_fixed_point_of_an_affine_map_in_one_step():
-    rng = np.random.default_rng(4)
-    n = 6
-    Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
-    J = Q @ np.diag([0.98, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
-    xstar = rng.normal(size=n)
+    rng, Q, J, xstar = affine_map(4, 0.98)
+    n = xstar.size
     x = xstar + 1e-3 * rng.normal(size=n)
     res = (xstar + J @ (x - xstar)) - x  # F(x) - x
     r = float(np.max(np.abs(res)))
