@@ -61,8 +61,7 @@ def test_newton_lands_on_the_fixed_point_of_an_affine_map_in_one_step():
     step = engine._newton_step(ExactMonodromy(J, False), res, r, 0.98)
     np.testing.assert_allclose(x - step, xstar, atol=1e-13)
     # where it is not to be trusted: no matrix, a shifted section, J - I singular, a step
-    # beyond what the residual and the contraction allow (another branch, far from the orbit,
-    # or a near-neutral map)
+    # beyond what the residual and the contraction allow (another branch, far from the orbit)
     assert engine._newton_step(None, res, r, 0.98) is None
     assert engine._newton_step(ExactMonodromy(J, True), res, r, 0.98) is None
     Js = Q @ np.diag([1.0, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T

@@ -854,7 +854,7 @@ class _Engine:
                         q = next(q for q in range(1, p + 1) if p % q == 0 and (
                             q == p or _max_diff(samples[q - 1], xs)
                             <= 10.0 * self.s.periodicity_tol * scale))  # fmt: skip
-                        measured = got
+                        # The confirming run is the orbit's measurement (rows, samples, J).
                         # Only an attracting orbit can be the one the trajectory approaches:
                         # extrapolation also converges to unstable fixed points (a period-1
                         # orbit past its period doubling), and the Ritz values of a short
@@ -865,18 +865,16 @@ class _Engine:
                         # version 9; up to 8 it stood on its confirmation alone).
                         if self._tried(xs, 1e-6):
                             return None  # checked already, from another candidate p
-                        J = measured[2]
                         if q < p:  # the q-period map's own matrix: one run of q periods
-                            got = self._side_run(xs, q, measure=False, exact=True)
-                            J = None if got is None else got[2]
-                        lam = self._multiplier(xs, q, measured[1][q - 1],
-                                               _impacts(measured[0][:q]), J,
+                            qrun = self._side_run(xs, q, measure=False, exact=True)
+                            J = None if qrun is None else qrun[2]
+                        lam = self._multiplier(xs, q, samples[q - 1], _impacts(rows[:q]), J,
                                                decides=True)  # fmt: skip
-                        orbit = _Orbit(xs.copy(), measured[0], q, lam)
+                        orbit = _Orbit(xs.copy(), rows, q, lam)
                         if lam is not None and lam < 1.0:
                             return orbit
                         # unstable, or its attraction not proven: not checked again
-                        self.tried.append(measured[1][:q].copy())
+                        self.tried.append(samples[:q].copy())
                         if lam is None:
                             radius = _exact_radius(J)
                             self.pending.append(_Pending(
