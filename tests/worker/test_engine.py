@@ -78,6 +78,34 @@ def test_newton_lands_on_the_fixed_point_of_an_affine_map_in_one_step():
     assert engine._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.5) is None
 
 
+def test_samples_follow_a_linearized_map_only_where_they_approach_its_fixed_point():
+    rng, _, J, xstar = affine_map(3, 0.95)
+    n = xstar.size
+    x = [xstar + 1e-3 * rng.normal(size=n)]
+    for _ in range(7):
+        x.append(xstar + J @ (x[-1] - xstar))
+    X = np.array(x)
+    assert engine._follows(J, X, xstar) and engine._follows(J, X, xstar, chained=False)
+    # a quadratic term of a few per cent of the deviation: still the linear regime
+    quad = [X[0]]
+    for _ in range(7):
+        d = quad[-1] - xstar
+        quad.append(xstar + J @ d + 3.0 * np.max(np.abs(d)) * d)
+    assert engine._follows(J, np.array(quad), xstar)
+    # an orbit of period 3 around the fixed point: near it, never approaching it
+    c = xstar + 1e-3 * rng.normal(size=(3, n))
+    cycle = np.array([c[k % 3] for k in range(8)])
+    assert not engine._follows(J, cycle, xstar)
+    assert not engine._follows(J, cycle, xstar, chained=False)
+    # three steps that fit one at a time, then a kick: not followed, chained or not
+    kicked = X.copy()
+    kicked[4:] += 0.5 * np.abs(X[4] - xstar).max() * rng.normal(size=n)
+    assert engine._follows(J, kicked[:4], xstar)
+    assert not engine._follows(J, kicked, xstar)
+    assert not engine._follows(J, kicked, xstar, chained=False)
+    assert not engine._follows(J, X[:1], xstar)  # one sample shows nothing
+
+
 def test_mser_cuts_the_transient_and_flags_a_trend():
     rng = np.random.default_rng(2)
     stationary = -20.0 + 0.1 * rng.normal(size=40)
@@ -259,6 +287,47 @@ def test_a_slowly_contracting_orbit_is_found_not_claimed_irregular():
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
     assert r.floquet_multiplier == pytest.approx(0.983, abs=1e-3)
     assert r.periods < plain.periods / 4
+
+
+def test_a_stable_orbit_the_trajectory_only_circles_is_not_reported():
+    # Figure 5 at θ 0.3, gap 0.3, γ_r 1.54: a stable period-1 orbit (multiplier 0.979) inside
+    # the period-3 orbit the trajectory settles on. Up to solver version 14 the period-2
+    # candidate's sequence extrapolated to the period-1 orbit, which was confirmed, found
+    # attracting and reported at 40 periods: 0.021 dB off, and the wrong period. Its samples
+    # do not follow its linearized map (residuals ~0.57 of their distance to it)
+    p = cell(theta=0.3, gamma_r=1.54, g1=0.3, g2=0.3)
+    r = simulate_point(p)
+    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=3000))  # fmt: skip
+    assert r.outcome == tight.outcome == "periodic"
+    assert r.response_period == tight.response_period == 3
+    assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=1e-9)
+    assert r.periods < tight.periods
+
+
+def test_a_stable_orbit_beside_chaos_is_not_reported():
+    # Figure 5 at θ 0.5, gap 1, γ_r 1.04: chaos passes within 1e-3 of a stable period-1 orbit
+    # (multiplier 0.773) and never settles on it. Up to solver version 14 that orbit was
+    # reported at 53 periods (8.8827 dB); plain iteration stays irregular for 5,000 periods
+    p = cell(theta=0.5, gamma_r=1.04, g1=1.0, g2=1.0)
+    r = simulate_point(p)
+    plain = simulate_point(p, SolverSettings(extrapolate=False, max_periods=5000))
+    assert r.outcome == plain.outcome == "irregular"
+    se = math.hypot(r.transmittance_db_se, plain.transmittance_db_se)
+    assert abs(r.transmittance_db - plain.transmittance_db) <= 3.0 * se
+
+
+def test_an_orbit_whose_map_its_newest_returns_follow_vetoes_the_irregular_claim():
+    # Figure 5 at θ 0.5, gap 0.1, γ_r 3.8: a period-8 orbit confirmed at 297 periods, whose
+    # samples fit its linearized map to 0.4 % at their newest steps but not chained from their
+    # oldest, 60 times farther out: it waits, and the trajectory may not be claimed irregular
+    # meanwhile (it was at 324 periods while only a closer distance vetoed the claim)
+    p = cell(theta=0.5, gamma_r=3.8)
+    r = simulate_point(p)
+    plain = simulate_point(p, SolverSettings(extrapolate=False, max_periods=3000))
+    assert r.outcome == plain.outcome == "periodic"
+    assert r.response_period == plain.response_period == 8
+    assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
 
 
 def test_an_orbit_reached_by_itself_is_measured_from_its_newton_polished_start():

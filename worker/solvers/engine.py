@@ -109,6 +109,9 @@ PENDING_BATCH = 4
 # confirmed at REACH_HOLD returns in a row (a chaotic trajectory may pass near an orbit once)
 REACH_SHRINK = 100.0
 REACH_HOLD = 3
+# ... or once its last MAX_RRE returns follow the orbit's linearized map to this fraction of
+# their distance to it (_follows; also what an extrapolated orbit needs to be reported at once)
+LINEAR_FIT = 0.25
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
@@ -354,6 +357,27 @@ def _newton_step(exact: ExactMonodromy | None, res: np.ndarray, r: float,
     return step
 
 
+def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True) -> bool:
+    """Whether the samples ``X`` (one map step apart, oldest first) follow the orbit's
+    linearized map towards its state ``x0`` (``M`` the map's matrix there): the deviations
+    ``D = X − x0`` must be what the linear map makes of the first one, ``D_j ≈ M^j D_0``
+    (``chained``; else of the one before, ``D_j ≈ M D_{j−1}``), to ``LINEAR_FIT·|D_j|`` at
+    every step. Samples that stay near an orbit without approaching it (an orbit of another
+    period around it, chaos beside it) fit no linear map: even one step misses by a good
+    part of the deviation (Figure 5 at θ 0.3, gap 0.3, γ_r 1.54: 0.57 of it, where a stable
+    period-1 orbit is circled by the period-3 orbit the trajectory settles on), and chaos that
+    fits three steps one at a time by chance does not fit seven chained (θ 0.5, gap 1,
+    γ_r 1.04). A trajectory approaching the orbit fits to ~1 % (the median at Figure 5's
+    orbits), less as it gets closer."""
+    D = X - x0
+    pred = D[0]
+    for j in range(1, len(D)):
+        pred = M @ (pred if chained else D[j - 1])
+        if np.max(np.abs(D[j] - pred)) > LINEAR_FIT * np.max(np.abs(D[j])):
+            return False
+    return len(D) >= 2
+
+
 def _impacts(rows: np.ndarray) -> float:
     """Impacts on both stops over the periods of ``rows`` (whole numbers: sums are exact)."""
     return float(rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum())
@@ -450,11 +474,17 @@ class _Orbit:
 
 @dataclass
 class _Pending:
-    orbit: _Orbit  # confirmed, but its attraction not proven (the map is not smooth there)
+    # confirmed, but its attraction not proven: the map is not smooth there, or the
+    # trajectory's samples do not (yet) follow its linearized map (_follows)
+    orbit: _Orbit
     found_at: float  # the trajectory's distance to it when it was confirmed
     # the exact matrix's spectral radius where it exists but did not decide (an orbit that
-    # starts stuck on a stop): reported once the trajectory has reached the orbit
+    # starts stuck on a stop), or the multiplier that did: reported once the trajectory has
+    # reached the orbit
     exact: float | None = None
+    # the q-period map's matrix at the orbit's start where the multiplier came from one: the
+    # orbit is also reached once the trajectory's returns follow it
+    matrix: np.ndarray | None = None
 
 
 class _Engine:
@@ -636,7 +666,7 @@ class _Engine:
             if self.s.early_stop and self.s.extrapolate:
                 x0, got = self._polish(x0, p, got)
             check = self.s.early_stop and self.nx * p <= CHECK_COST * self.work["periods"]
-            lam = self._multiplier(x0, p, got[1][p - 1], _impacts(got[0]), got[2], check)
+            lam, _ = self._multiplier(x0, p, got[1][p - 1], _impacts(got[0]), got[2], check)
             if lam is not None and math.isinf(lam):
                 return None  # over the point's limits: the main loop fails it
             return _Orbit(x0.copy(), got[0], p, lam)
@@ -665,8 +695,8 @@ class _Engine:
         return x1, again
 
     def _multiplier(self, x0: np.ndarray, q: int, fx0: np.ndarray, impacts: float,
-                    exact: ExactMonodromy | None, check: bool = True,
-                    decides: bool = False) -> float | None:  # fmt: skip
+                    exact: ExactMonodromy | None, check: bool = True, decides: bool = False,
+                    ) -> tuple[float | None, np.ndarray | None]:  # fmt: skip
         """The dominant Floquet multiplier of the q-periodic orbit through ``x0``: at zero gaps
         the pinned system's exact one, at no cost (:meth:`_pinned_multiplier`; side runs would
         only find a perturbed tip leaving the stops); else the spectral radius of ``exact``,
@@ -682,21 +712,25 @@ class _Engine:
         differences still decide, as before that matrix: where they find no Jacobian the
         orbit waits until the trajectory reaches it (which kept a stable orbit beside a
         chaotic trajectory from being reported); where they find it attracting, the exact
-        radius is the value."""
+        radius is the value.
+
+        Also returns the q-period map's matrix at ``x0`` (τ = 0) the multiplier came from:
+        ``exact``'s where its section is τ = 0, else the finite differences' (None: pinned,
+        none run, or no Jacobian)."""
         if self.pinned_re is not None:
-            return self._pinned_multiplier(q)
+            return self._pinned_multiplier(q), None
         if not self.s.early_stop:
-            return None
+            return None, None
         radius = _exact_radius(exact)
         if radius is not None and radius < 1.0 and not (decides and exact.shifted):
-            return radius
-        lam = self._monodromy_radius(x0, q, fx0, impacts) if check else None
+            return radius, None if exact.shifted else exact.matrix
+        lam, J = self._monodromy_radius(x0, q, fx0, impacts) if check else (None, None)
         if radius is not None and radius < 1.0 and lam is not None and lam < 1.0:
-            return radius
-        return lam
+            return radius, J
+        return lam, J
 
-    def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray,
-                          impacts: float) -> float | None:  # fmt: skip
+    def _monodromy_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray, impacts: float,
+                          ) -> tuple[float | None, np.ndarray | None]:  # fmt: skip
         """The dominant Floquet multiplier's modulus of the p-periodic orbit through ``x0``
         (``fx0``: the state p periods after it): the spectral radius of the monodromy matrix,
         the p-period map's Jacobian, by forward differences of ``nx`` unmeasured side runs
@@ -706,17 +740,18 @@ class _Engine:
         perturbed run has other impacts than the orbit (``impacts`` over p periods), or a
         radius of 1 or more is not reproduced with ten times the step (a jump of the map, a
         sticking or grazing contact, makes the differences grow like 1/step); inf when the
-        point's limits ran out meanwhile (it then fails with that reason)."""
-        lam = self._fd_radius(x0, p, fx0, impacts, FD_STEP)
+        point's limits ran out meanwhile (it then fails with that reason). With it, the
+        matrix (None with no radius)."""
+        lam, J = self._fd_radius(x0, p, fx0, impacts, FD_STEP)
         if lam is None or lam < 1.0 or math.isinf(lam):
-            return lam
-        again = self._fd_radius(x0, p, fx0, impacts, 10.0 * FD_STEP)
+            return lam, J
+        again, _ = self._fd_radius(x0, p, fx0, impacts, 10.0 * FD_STEP)
         if again is None or abs(again - lam) > 0.01 * lam:
-            return None
-        return lam
+            return None, None
+        return lam, J
 
     def _fd_radius(self, x0: np.ndarray, p: int, fx0: np.ndarray, impacts: float,
-                   step: float) -> float | None:  # fmt: skip
+                   step: float) -> tuple[float | None, np.ndarray | None]:  # fmt: skip
         """:meth:`_monodromy_radius` with one relative ``step``, without the jump test."""
         h = step * float(np.max(np.abs(x0)))
         J = np.empty((self.nx, self.nx))
@@ -725,18 +760,18 @@ class _Engine:
             # are seen between them; inf rejects the orbit, and the main loop then fails the
             # point with the reason
             if self._over_budget():
-                return math.inf
+                return math.inf, None
             x = x0.copy()
             x[i] += h
             got = self._side_run(x, p, measure=False)
             if got is None:
-                return None
+                return None, None
             rows, samples, _ = got
             if _impacts(rows) != impacts:
-                return None
+                return None, None
             J[:, i] = (samples[-1] - fx0) / h
         ev = np.linalg.eigvals(J)
-        return float(np.max(np.abs(ev))) if np.all(np.isfinite(ev)) else None
+        return (float(np.max(np.abs(ev))), J) if np.all(np.isfinite(ev)) else (None, None)
 
     def _tried(self, x: np.ndarray, rel: float) -> bool:
         """Whether ``x`` is within ``rel`` of its size of a state of an orbit already checked
@@ -761,15 +796,21 @@ class _Engine:
         return back[0] if back else math.inf
 
     def _returns(self, o: _Orbit, k: int) -> list[float]:
-        """The trajectory's distance to orbit ``o`` at its last k returns, newest first: the
-        one of its last q samples nearest ``o``'s start, and the samples q, 2q, … before it
-        (empty before it has k·q samples)."""
+        """The trajectory's distance to orbit ``o`` at its last k returns, newest first (empty
+        before it has k·q samples)."""
+        X = self._return_states(o, k)
+        return [] if X is None else [_max_diff(x, o.x0) for x in X[::-1]]
+
+    def _return_states(self, o: _Orbit, k: int) -> np.ndarray | None:
+        """The trajectory's states at its last k returns to orbit ``o``, oldest first: the one
+        of its last q samples nearest ``o``'s start, and the samples q, 2q, … before it (None
+        before it has k·q samples)."""
         q = o.p
         if self.nrecent < k * q:
-            return []
+            return None
         last = [_max_diff(x, o.x0) for x in self.recent[RECENT - q :]]
         j = RECENT - q + int(np.argmin(last))
-        return [_max_diff(self.recent[j - i * q], o.x0) for i in range(k)]
+        return self.recent[[j - i * q for i in range(k - 1, -1, -1)]]
 
     def _reached(self, slack: float) -> _Orbit | None:
         """A pending orbit the trajectory has reached: it is on the orbit to
@@ -777,20 +818,35 @@ class _Engine:
         it has been ``REACH_SHRINK`` times closer than when the orbit was confirmed at its
         last ``REACH_HOLD`` returns (it is attracted there, not passing by). Its multiplier is
         the exact matrix's where there is one (an orbit that starts stuck on a stop), else none:
-        there is no Jacobian."""
+        there is no Jacobian. An attracting orbit whose linearized map the trajectory did not
+        follow when it was confirmed is also reached once its last returns follow it
+        (:func:`_follows`), with its multiplier."""
         for pend in self.pending:
             o = pend.orbit
             near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
             back = self._returns(o, REACH_HOLD)
             if self._distance(o) <= near or (back and max(back) <= pend.found_at / REACH_SHRINK):
                 return replace(o, multiplier=pend.exact)
+            if pend.matrix is not None and pend.exact is not None:
+                X = self._return_states(o, min(MAX_RRE, RECENT // o.p))
+                if X is not None and _follows(pend.matrix, X, o.x0):
+                    return replace(o, multiplier=pend.exact)
         return None
 
     def _approaching(self) -> _Orbit | None:
-        """The pending orbit the trajectory is closer to than when it was confirmed, if any: a
-        response on its way to an orbit is not irregular."""
-        return next((pd.orbit for pd in self.pending if self._distance(pd.orbit) < pd.found_at),
-                    None)  # fmt: skip
+        """The pending orbit the trajectory is closer to than when it was confirmed, or whose
+        linearized map its last returns follow step by step, if any: a response on its way to
+        an orbit is not irregular (Figure 5 at θ 0.5, gap 0.1, γ_r 3.8: a period-8 orbit whose
+        sequence fitted the map to 0.4 % at its newest steps, but not chained from its oldest
+        sample, 60 times farther out)."""
+        for pd in self.pending:
+            if self._distance(pd.orbit) < pd.found_at:
+                return pd.orbit
+            if pd.matrix is not None:
+                X = self._return_states(pd.orbit, REACH_HOLD + 1)
+                if X is not None and _follows(pd.matrix, X, pd.orbit.x0, chained=False):
+                    return pd.orbit
+        return None
 
     def _extrapolate(self, p: int) -> _Orbit | None:
         """Extrapolate the p-periodic limit of the sequence, then confirm it by integration."""
@@ -868,14 +924,26 @@ class _Engine:
                         if q < p:  # the q-period map's own matrix: one run of q periods
                             qrun = self._side_run(xs, q, measure=False, exact=True)
                             J = None if qrun is None else qrun[2]
-                        lam = self._multiplier(xs, q, samples[q - 1], _impacts(rows[:q]), J,
-                                               decides=True)  # fmt: skip
+                        lam, M = self._multiplier(xs, q, samples[q - 1], _impacts(rows[:q]),
+                                                  J, decides=True)  # fmt: skip
                         orbit = _Orbit(xs.copy(), rows, q, lam)
-                        if lam is not None and lam < 1.0:
+                        # An attracting orbit is the one the trajectory approaches only if
+                        # its samples follow the orbit's linearized map (solver version 15):
+                        # a stable orbit may be circled by another orbit or by chaos that
+                        # never reaches it, and a slowly contracting sequence cannot tell.
+                        # (M is None only at zero gaps, where every state is attracted.)
+                        attracting = lam is not None and lam < 1.0
+                        if attracting and (
+                            M is None or _follows(np.linalg.matrix_power(M, p // q), X, xs)
+                        ):
                             return orbit
                         # unstable, or its attraction not proven: not checked again
                         self.tried.append(samples[:q].copy())
-                        if lam is None:
+                        if attracting and M is not None:
+                            self.pending.append(
+                                _Pending(orbit, self._distance(orbit), lam, M.copy())
+                            )  # fmt: skip
+                        elif lam is None:
                             radius = _exact_radius(J)
                             self.pending.append(_Pending(
                                 orbit, self._distance(orbit),
@@ -983,8 +1051,9 @@ class _Engine:
         near = self._approaching()
         if near is not None:
             return what + (f" before the trajectory reached the period-{near.p} orbit extrapolated "
-                           "from it, which is reported only once reached: the period map is not "
-                           "smooth there, so its attraction is not proven")  # fmt: skip
+                           "from it, which is reported only once reached: its attraction from "
+                           "here is not proven (the period map is not smooth there, or the "
+                           "trajectory does not follow its linearization)")  # fmt: skip
         if not len(win):
             return what + " before a whole window was measured"
         if sum(win.impacts[-1]) == 0:
