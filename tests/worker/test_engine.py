@@ -289,22 +289,6 @@ def test_a_slowly_contracting_orbit_is_found_not_claimed_irregular():
     assert r.periods < plain.periods / 4
 
 
-def test_a_stable_orbit_the_trajectory_only_circles_is_not_reported():
-    # Figure 5 at θ 0.3, gap 0.3, γ_r 1.54: a stable period-1 orbit (multiplier 0.979) inside
-    # the period-3 orbit the trajectory settles on. Up to solver version 14 the period-2
-    # candidate's sequence extrapolated to the period-1 orbit, which was confirmed, found
-    # attracting and reported at 40 periods: 0.021 dB off, and the wrong period. Its samples
-    # do not follow its linearized map (residuals ~0.57 of their distance to it)
-    p = cell(theta=0.3, gamma_r=1.54, g1=0.3, g2=0.3)
-    r = simulate_point(p)
-    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=3000))  # fmt: skip
-    assert r.outcome == tight.outcome == "periodic"
-    assert r.response_period == tight.response_period == 3
-    assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=1e-9)
-    assert r.periods < tight.periods
-
-
 def test_a_stable_orbit_beside_chaos_is_not_reported():
     # Figure 5 at θ 0.5, gap 1, γ_r 1.04: chaos passes within 1e-3 of a stable period-1 orbit
     # (multiplier 0.773) and never settles on it. Up to solver version 14 that orbit was
@@ -330,19 +314,33 @@ def test_an_orbit_whose_map_its_newest_returns_follow_vetoes_the_irregular_claim
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
 
 
-def test_an_orbit_reached_by_itself_is_measured_from_its_newton_polished_start():
-    # Figure 5 at θ 0.5, gap 0.7, γ_r 0.5: the trajectory's samples repeat by themselves
-    # (period 9) while it is still 6.7e-9 of the state from the orbit, which its periodicity
-    # test cannot see; one Newton step on the exact matrix puts the start within 1.7e-14.
-    # Up to solver version 13 Γ was 9.3e-11 dB off plain iteration to a thousandfold tighter
-    # periodicity tolerance
-    p = cell(theta=0.5, gamma_r=0.5, g1=0.7, g2=0.7)
+@pytest.mark.parametrize(
+    ("kw", "period", "tol_db"),
+    [
+        # Figure 5 at θ 0.5, gap 0.7, γ_r 0.5: the trajectory's samples repeat by themselves
+        # (period 9) while it is still 6.7e-9 of the state from the orbit, which its periodicity
+        # test cannot see; one Newton step on the exact matrix puts the start within 1.7e-14.
+        # Up to solver version 13 Γ was 9.3e-11 dB off
+        pytest.param(dict(theta=0.5, gamma_r=0.5, g1=0.7, g2=0.7), 9, 1e-11,
+                     id="reached-by-itself-newton-polished"),
+        # Figure 5 at θ 0.3, gap 0.3, γ_r 1.54: a stable period-1 orbit (multiplier 0.979)
+        # inside the period-3 orbit the trajectory settles on. Up to solver version 14 the
+        # period-2 candidate's sequence extrapolated to the period-1 orbit, which was confirmed,
+        # found attracting and reported at 40 periods: 0.021 dB off, and the wrong period. Its
+        # samples do not follow its linearized map (residuals ~0.57 of their distance to it)
+        pytest.param(dict(theta=0.3, gamma_r=1.54, g1=0.3, g2=0.3), 3, 1e-9,
+                     id="stable-orbit-only-circled-not-reported"),
+    ],
+)  # fmt: skip
+def test_the_orbit_reported_is_the_one_tight_plain_iteration_reaches(kw, period, tol_db):
+    p = cell(**kw)
     r = simulate_point(p)
     tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
                                              max_periods=4000))  # fmt: skip
     assert r.outcome == tight.outcome == "periodic"
-    assert r.response_period == tight.response_period == 9
-    assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=1e-11)
+    assert r.response_period == tight.response_period == period
+    assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=tol_db)
+    assert r.periods < tight.periods
 
 
 @pytest.mark.parametrize(("gamma_r", "period"), [(0.7, 2), (0.6, 3), (2.5, 4)])
