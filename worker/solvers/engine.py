@@ -478,10 +478,10 @@ class _Pending:
     # trajectory's samples do not (yet) follow its linearized map (_follows)
     orbit: _Orbit
     found_at: float  # the trajectory's distance to it when it was confirmed
-    # the exact matrix's spectral radius where it exists but did not decide (an orbit that
-    # starts stuck on a stop), or the multiplier that did: reported once the trajectory has
-    # reached the orbit
-    exact: float | None = None
+    # what is reported as its multiplier once the trajectory has reached it: the one that
+    # found it attracting, or the exact matrix's spectral radius where that exists but did not
+    # decide (an orbit that starts stuck on a stop); None: no Jacobian
+    multiplier: float | None = None
     # the q-period map's matrix at the orbit's start where the multiplier came from one: the
     # orbit is also reached once the trajectory's returns follow it
     matrix: np.ndarray | None = None
@@ -816,21 +816,19 @@ class _Engine:
         """A pending orbit the trajectory has reached: it is on the orbit to
         ``slack·periodicity_tol`` (1: what a sequence that repeats by itself must show), or
         it has been ``REACH_SHRINK`` times closer than when the orbit was confirmed at its
-        last ``REACH_HOLD`` returns (it is attracted there, not passing by). Its multiplier is
-        the exact matrix's where there is one (an orbit that starts stuck on a stop), else none:
-        there is no Jacobian. An attracting orbit whose linearized map the trajectory did not
-        follow when it was confirmed is also reached once its last returns follow it
-        (:func:`_follows`), with its multiplier."""
+        last ``REACH_HOLD`` returns (it is attracted there, not passing by), with the pending
+        multiplier. An attracting orbit whose linearized map the trajectory did not follow when
+        it was confirmed is also reached once its last returns follow it (:func:`_follows`)."""
         for pend in self.pending:
             o = pend.orbit
             near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
             back = self._returns(o, REACH_HOLD)
             if self._distance(o) <= near or (back and max(back) <= pend.found_at / REACH_SHRINK):
-                return replace(o, multiplier=pend.exact)
-            if pend.matrix is not None and pend.exact is not None:
+                return replace(o, multiplier=pend.multiplier)
+            if pend.matrix is not None:
                 X = self._return_states(o, min(MAX_RRE, RECENT // o.p))
                 if X is not None and _follows(pend.matrix, X, o.x0):
-                    return replace(o, multiplier=pend.exact)
+                    return replace(o, multiplier=pend.multiplier)
         return None
 
     def _approaching(self) -> _Orbit | None:
