@@ -112,6 +112,9 @@ REACH_HOLD = 3
 # ... or once its last MAX_RRE returns follow the orbit's linearized map to this fraction of
 # their distance to it (_follows; also what an extrapolated orbit needs to be reported at once)
 LINEAR_FIT = 0.25
+# ... and the motion it predicts over them to this fraction of that motion; with a multiplier
+# whose MAX_RRE-th power is above this, all returns the buffer holds are used (_fit_returns)
+SLOW_SHRINK = 0.5
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
@@ -375,6 +378,15 @@ def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True)
         pred = M @ (pred if chained else D[j - 1])
         if np.max(np.abs(D[j] - pred)) > LINEAR_FIT * np.max(np.abs(D[j])):
             return False
+    if chained and len(D) >= 2:
+        # The approach the map predicts over the samples must be seen too: where the
+        # multiplier is near 1 in modulus, the deviation hardly shrinks, and samples on another
+        # orbit close around this one fit its position (nightly paper-params, θ 0.5, σ 0.03,
+        # γ_s 0.8, ξ 0.08, γ_r 1: a period-1 orbit of multiplier -0.9995 fitted to 13 % by
+        # samples approaching the period-2 orbit around it; the map brings them 0.35 % closer
+        # over 8 samples, and they missed its prediction by 12 %).
+        closer = np.max(np.abs(D[0])) - np.max(np.abs(pred))
+        return bool(np.max(np.abs(D[-1] - pred)) <= LINEAR_FIT * closer)
     return len(D) >= 2
 
 
@@ -826,10 +838,21 @@ class _Engine:
             if self._distance(o) <= near or (back and max(back) <= pend.found_at / REACH_SHRINK):
                 return replace(o, multiplier=pend.multiplier)
             if pend.matrix is not None:
-                X = self._return_states(o, min(MAX_RRE, RECENT // o.p))
-                if X is not None and _follows(pend.matrix, X, o.x0):
-                    return replace(o, multiplier=pend.multiplier)
+                for k in self._fit_returns(o.p, pend.multiplier):
+                    X = self._return_states(o, k)
+                    if X is not None and _follows(pend.matrix, X, o.x0):
+                        return replace(o, multiplier=pend.multiplier)
         return None
+
+    @staticmethod
+    def _fit_returns(q: int, lam: float) -> tuple[int, ...]:
+        """How many of a q-periodic orbit's last returns chained fits use (multiplier
+        ``lam``): MAX_RRE; where the map shrinks deviations less than SLOW_SHRINK over those
+        (a multiplier near 1: the motion to be seen is small) also all the buffer holds."""
+        short = min(MAX_RRE, RECENT // q)
+        if lam ** (MAX_RRE - 1) <= SLOW_SHRINK or short == RECENT // q:
+            return (short,)
+        return (short, RECENT // q)
 
     def _approaching(self) -> _Orbit | None:
         """The pending orbit the trajectory is closer to than when it was confirmed, or whose
