@@ -431,6 +431,59 @@ def test_a_slowly_converging_long_orbit_vetoes_the_irregular_claim():
     assert r.transmittance_db == pytest.approx(d.transmittance_db, abs=1e-8)
 
 
+def test_steadily_shrinking_differences_show_a_long_orbit_being_approached():
+    rng = np.random.default_rng(5)
+    n, p, nx = engine.HISTORY, 13, 6
+    orbit = rng.normal(size=(p, nx))
+    # a period-13 orbit approached at a multiplier of 0.62 a return (0.964 a period), the
+    # newest samples 1e-4 from it
+    dev = rng.normal(size=(p, nx))
+    X = np.array([orbit[k % p] + 0.964 ** (k - n) * 1e-4 * dev[k % p] for k in range(n)])
+    assert engine._shrinking_p(X, n, ms.MAX_PERIOD) == 13
+    # not while fewer samples than seven returns and one more period are kept
+    assert engine._shrinking_p(X, 7 * p, ms.MAX_PERIOD) == 0
+    # the hundredfold test over the last 32 periods does not see it (0.31-fold)
+    assert engine._converging_p(X[-engine.RECENT :], engine.RECENT // 2 - 1) == 0
+    # sequences that do not converge: noise, and an orbit circled at a constant distance
+    for seed in range(20):
+        noise = np.random.default_rng(seed).normal(size=(n, nx))
+        assert engine._shrinking_p(noise, n, ms.MAX_PERIOD) == 0
+    circled = np.array([orbit[k % p] + 1e-2 * dev[(k + k // p) % p] for k in range(n)])
+    assert engine._shrinking_p(circled, n, ms.MAX_PERIOD) == 0
+
+
+def test_a_steadily_converging_orbit_is_not_claimed_irregular():
+    # Figure 5 at θ 0.5, gap 0.1, γ_r 3.66: the sequence converges to a period-1 orbit of
+    # multiplier 0.966, its differences shrinking steadily; up to solver version 15 the
+    # converged window statistics were claimed irregular at 300 periods (-13.3603 dB, 0.006 dB
+    # off), the hundredfold test over 32 periods (a 0.33-fold shrink) not seeing it
+    p = cell(theta=0.5, gamma_r=3.66)
+    r = simulate_point(p)
+    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=3000))  # fmt: skip
+    assert r.outcome == tight.outcome == "periodic"
+    assert r.response_period == tight.response_period == 1
+    assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=1e-8)
+    assert r.periods > 300  # it went on past the old claim
+
+
+def test_an_unstable_orbit_the_samples_reach_is_not_reported():
+    # Figure 5 at θ 0.3, gap 0.7, γ_r 1.18: the samples repeat to periodicity_tol near a
+    # period-6 orbit of multiplier 1.053 (they came along its stable directions), and plain
+    # iteration reported it; the trajectory leaves it, and settles after ~2,600 periods on a
+    # stable period-6 orbit 0.0018 dB away. Within the budget of 1000 periods: unsettled
+    p = cell(theta=0.3, gamma_r=1.18, g1=0.7, g2=0.7)
+    for s in (SolverSettings(), SolverSettings(extrapolate=False)):
+        r = simulate_point(p, s)
+        assert r.outcome == "unsettled" and r.transmittance_db_se is not None
+    # (a budget whose quarter, the earliest irregular claim, is past that transient chaos)
+    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=12000))  # fmt: skip
+    assert tight.outcome == "periodic" and tight.response_period == 6
+    assert tight.floquet_multiplier < 1.0
+    assert abs(tight.transmittance_db - r.transmittance_db) > 1e-3
+
+
 def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
     # Figure 5's cell at θ 0.5, gap 0.1, γ_r 1.42: the period-1 orbit is past its period
     # doubling (its monodromy matrix's spectral radius is 1.025). Extrapolation converges to
