@@ -129,10 +129,10 @@ def test_near_a_multiplier_of_modulus_one_the_samples_must_show_the_approach(top
 
 def test_a_slow_orbit_that_the_trajectory_only_passes_is_not_reported():
     # The nightly paper-params study's cell at θ 0.5, σ 0.03, γ_s 0.8, ξ 0.08, γ_r 1 and its
-    # settings. A period-1 orbit of multiplier 0.9995 sits inside the period-2 orbit
-    # (multiplier 0.962) the trajectory settles on. Up to solver version 15 the samples' fit to
-    # the period-1 orbit's map (0.4 % a step) reported it at 106 periods: 1.8e-4 dB off, the
-    # wrong period (with periodicity_tol 1e-10 it found the period-2 orbit)
+    # settings. A period-1 orbit of multiplier -0.9995 sits inside the period-2 orbit
+    # (multiplier 0.962) the trajectory settles on. Up to solver version 15 the samples' fit
+    # to the period-1 orbit's map (13 % chained, 2 % a step) reported it at 106 periods:
+    # 1.8e-4 dB off, the wrong period (with periodicity_tol 1e-10 it found the period-2 orbit)
     p = CellParams(coupling="paper", modes=3, xi_b=0.04, g1=0.2, g2=0.2, theta=0.5,
                    sigma=0.03, gamma_s=0.8, xi=0.08, gamma_r=1.0)  # fmt: skip
     s = dict(method="exponential", steps_per_period=1024, coarse_steps=32, window=10)

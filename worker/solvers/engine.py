@@ -118,8 +118,9 @@ REACH_HOLD = 3
 # ... or once its last MAX_RRE returns follow the orbit's linearized map to this fraction of
 # their distance to it (_follows; also what an extrapolated orbit needs to be reported at once)
 LINEAR_FIT = 0.25
-# ... and the motion it predicts over them to this fraction of that motion; with a multiplier
-# whose MAX_RRE-th power is above this, all returns the buffer holds are used (_fit_returns)
+# (and the newest within LINEAR_FIT of how much closer the map brings the oldest). Where the map
+# brings deviations less than this much closer over MAX_RRE returns (a multiplier near 1),
+# pending orbits are also fitted over all the returns the buffer holds (_fit_returns)
 SLOW_SHRINK = 0.5
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 # Periods (times the orbit's period) without periodicity signals after an unstable orbit was
@@ -416,7 +417,10 @@ def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True)
     period-1 orbit is circled by the period-3 orbit the trajectory settles on), and chaos that
     fits three steps one at a time by chance does not fit seven chained (θ 0.5, gap 1,
     γ_r 1.04). A trajectory approaching the orbit fits to ~1 % (the median at Figure 5's
-    orbits), less as it gets closer."""
+    orbits), less as it gets closer. Chained, the newest sample must also have come as much
+    closer as the map brings it, to ``LINEAR_FIT`` of that approach (solver version 16): near a
+    multiplier of modulus 1 the map hardly moves a deviation closer, and a fit of positions
+    alone is passed by samples on a nearby orbit."""
     D = X - x0
     pred = D[0]
     for j in range(1, len(D)):
@@ -428,8 +432,8 @@ def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True)
         # multiplier is near 1 in modulus, the deviation hardly shrinks, and samples on another
         # orbit close around this one fit its position (nightly paper-params, θ 0.5, σ 0.03,
         # γ_s 0.8, ξ 0.08, γ_r 1: a period-1 orbit of multiplier -0.9995 fitted to 13 % by
-        # samples approaching the period-2 orbit around it; the map brings them 0.35 % closer
-        # over 8 samples, and they missed its prediction by 12 %).
+        # samples approaching the period-2 orbit around it; the map brings them 0.6 % closer
+        # over the 8 samples, and they came 12 % closer).
         closer = np.max(np.abs(D[0])) - np.max(np.abs(pred))
         return bool(np.max(np.abs(D[-1] - pred)) <= LINEAR_FIT * closer)
     return len(D) >= 2
