@@ -115,6 +115,19 @@ def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> 
     assert mod.ceiling(rows[:1]) == float("inf")
 
 
+def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
+    mod = _load("irregular_budget")
+    pts, settings = mod.study_points("quick")
+    assert len(pts) == 360  # 60 γ_r × 3 gaps × 2 θ
+    # the case names the coordinates that vary besides γ_r (σ, γ_s and ξ do not)
+    case, g, p = pts[-1]
+    assert case == "theta 0.3, g1 2, g2 2" and g == pytest.approx(6.0)
+    assert (p.theta, p.g1, p.g2, p.gamma_r, p.xi) == (0.3, 2.0, 2.0, g, 0.05)
+    assert settings.method == "event" and settings.max_periods == 1000
+    spectra, default = mod.spectra_points(4)
+    assert len(spectra) == 12 and default == mod.SolverSettings()
+
+
 def test_run_command_table_has_the_cpu_floor() -> None:
     rc = _load("run_command")
     rows = [
