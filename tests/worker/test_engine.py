@@ -476,6 +476,7 @@ def test_an_unstable_orbit_the_samples_reach_is_not_reported():
     for s in (SolverSettings(), SolverSettings(extrapolate=False)):
         r = simulate_point(p, s)
         assert r.outcome == "unsettled" and r.transmittance_db_se is not None
+        assert "near an unstable period-6 orbit (multiplier 1.05" in r.reason
     # (a budget whose quarter, the earliest irregular claim, is past that transient chaos)
     tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
                                              max_periods=12000))  # fmt: skip

@@ -588,6 +588,7 @@ class _Engine:
         ) if settings.early_stop else 0  # fmt: skip
         self.quiet_backoff = 1
         self.hold_periodic = 0  # no periodicity signal before this period (_unstable)
+        self.passed_unstable: _Orbit | None = None  # the last such orbit (the reason names it)
         self.backoff = 4
         # The stroboscopic states (q, nx) of every orbit checked for attraction: found
         # unstable, or pending. Not tried again: a later fit may land on any of its q states.
@@ -680,6 +681,7 @@ class _Engine:
                     # periods on a stable period-6 orbit 0.0018 dB away). Not signalled again
                     # while it is near.
                     self.hold_periodic = self.period + UNSTABLE_HOLD * p
+                    self.passed_unstable = orbit
             elif code == ms.END_CANDIDATE:
                 orbit = self._extrapolate(p)
                 if orbit is not None:
@@ -1161,6 +1163,10 @@ class _Engine:
         if trend > MAX_TREND:
             return what + f": Γ still drifts (trend t = {trend:.3g}): a slow transient"
         p = self._converging()
+        u = self.passed_unstable
+        if p and u is not None and p % u.p == 0:
+            return what + (f" while the response was near an unstable period-{u.p} orbit "
+                           f"(multiplier {u.multiplier:.4g}), which it leaves")  # fmt: skip
         if p:
             return what + f" while the response was still converging to a period-{p} orbit"
         return what + f": standard error of Γ {se:.3g} dB > {self.s.stat_tol_db:g} dB"
