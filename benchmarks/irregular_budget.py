@@ -62,7 +62,7 @@ def study_points(name: str) -> tuple[list[tuple[str, float, CellParams]], Solver
     for kw in grid:
         where = ", ".join(f"{k} {kw[k]:g}" for k in varying)
         pts.append((where, float(kw["gamma_r"]), CellParams(**kw)))
-    return pts, SolverSettings(**study.solver.model_dump())
+    return pts, study.solver.settings()
 
 
 def main(argv: list[str] | None = None) -> int:

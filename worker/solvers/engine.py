@@ -322,13 +322,11 @@ def _work_sums(rows: np.ndarray) -> tuple[float, float, float]:
 
 
 @njit(cache=True, nogil=True)
-def _push_recent(recent: np.ndarray, imp: np.ndarray, reg: np.ndarray, rows: np.ndarray,
-                 samples: np.ndarray) -> None:  # fmt: skip
-    """Append a batch's stroboscopic samples, impacts and end regimes to the newest-last
-    buffers (the oldest drop out)."""
-    _push_samples(recent, samples)
+def _push_recent(imp: np.ndarray, reg: np.ndarray, rows: np.ndarray) -> None:
+    """Append a batch's impacts and end regimes to the newest-last buffers of the samples kept
+    for extrapolation (the oldest drop out)."""
     n = rows.shape[0]
-    size = recent.shape[0]
+    size = imp.shape[0]
     k = min(n, size)
     for i in range(size - k):
         imp[i] = imp[i + k]
@@ -571,12 +569,14 @@ class _Engine:
         w = settings.window
         self.rows = np.zeros((w, ms.ROW))
         self.samples = np.zeros((w, self.nx))
-        self.recent = np.zeros((RECENT, self.nx))  # stroboscopic samples, newest last
+        # Stroboscopic samples, newest last: HISTORY for _shrinking_p, the last RECENT of them
+        # (a view: one buffer, shifted once a batch) for extrapolation and the other tests
+        self.history = np.zeros((HISTORY, self.nx))
+        self.nhistory = 0
+        self.recent = self.history[HISTORY - RECENT :]
         self.recent_imp = np.zeros(RECENT)  # impacts in each of those periods
         self.recent_reg = np.zeros(RECENT)
         self.nrecent = 0
-        self.history = np.zeros((HISTORY, self.nx))  # more of them, for _shrinking_p
-        self.nhistory = 0
         self.windows = _Windows(w)
         self.period = 0  # periods of the main trajectory
         self.work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
@@ -611,10 +611,10 @@ class _Engine:
         if not main or n == 0:
             return
         self.windows.add(rows, self.p.base_scale)
-        _push_recent(self.recent, self.recent_imp, self.recent_reg, rows, samples)
-        self.nrecent = min(RECENT, self.nrecent + n)
         _push_samples(self.history, samples)
         self.nhistory = min(HISTORY, self.nhistory + n)
+        _push_recent(self.recent_imp, self.recent_reg, rows)
+        self.nrecent = min(RECENT, self.nrecent + n)
         self.period += n
 
     def _side_run(self, x0: np.ndarray, n: int, measure: bool = True,
