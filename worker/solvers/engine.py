@@ -126,6 +126,9 @@ TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 # Periods (times the orbit's period) without periodicity signals after an unstable orbit was
 # reached by the samples: they repeat near it for a while as the trajectory leaves
 UNSTABLE_HOLD = 4
+# A p-periodic state whose q-spaced differences (q | p) are within this many periodicity_tol may
+# still be approaching a period-q orbit: it must show them steady first (_divisors_steady)
+AMBIGUOUS = 1e3
 BATCH_S = 0.25  # target seconds per batch of periods: how often limits and cancel are seen
 
 
@@ -221,6 +224,7 @@ def compile_helpers() -> None:
     rre(X)
     _converging_p(X, 1)
     _shrinking_p(X, 4, 1)
+    _divisors_steady(X, 4, 2, 1e-6, 1e-9)
     _max_diff(X[0], X[1])
 
 
@@ -371,6 +375,37 @@ def _shrinking_p(history: np.ndarray, n: int, max_period: int) -> int:
         if steady and newest * SHRINK_FACTOR <= prev:
             return p
     return 0
+
+
+@njit(cache=True, nogil=True)
+def _divisors_steady(history: np.ndarray, n: int, p: int, near: float, tol: float) -> bool:
+    """Whether the newest of the newest-last samples (the last ``n`` of ``history`` valid),
+    found to repeat after p periods, is a period-p state rather than one still approaching a
+    period-q orbit, q a proper divisor of p. Near such an orbit, a mode whose multiplier is near
+    a (p/q)-th root of unity hardly shows in the p-spaced differences, while the q-spaced ones
+    still shrink with it (Figure 5 at θ 0.5, gap 0.1, γ_r 3.42: period 2 reported, the state 22
+    times farther from the period-1 orbit than periodicity_tol); a period-p orbit keeps its
+    q-spaced differences. So wherever a q-spaced difference is within ``near`` (relative; and
+    beyond 10·``tol``, the kernel's own divisor test) it must have been the same to 10 %
+    ``RECENT`` periods earlier (the nearest multiple of p, at least 2p; a slow mode's
+    differences shrink by more over 64 periods wherever its multiplier is below 0.998)."""
+    last = history.shape[0] - 1
+    scale = 1e-300
+    for i in range(history.shape[1]):
+        scale = max(scale, abs(history[last, i]))
+    for q in range(1, p):
+        if p % q:
+            continue
+        e0 = _max_diff(history[last], history[last - q])
+        if e0 > near * scale or e0 <= 10.0 * tol * scale:
+            continue
+        back = max(RECENT // p, 2) * p
+        if back + q > n - 1:
+            return False
+        e1 = _max_diff(history[last - back], history[last - back - q])
+        if abs(e1 - e0) > 0.1 * e0:
+            return False
+    return True
 
 
 def _exact_radius(exact: ExactMonodromy | None) -> float | None:
@@ -670,6 +705,8 @@ class _Engine:
                     return self._linear_or_undamped()
                 self.run.kst[ms.K_NEXT_QUIET] = self.run.kst[ms.K_PERIOD] + self.quiet_backoff
                 self.quiet_backoff = min(2 * self.quiet_backoff, 32)
+            elif code == ms.END_PERIODIC and not self._period_proven(p):
+                self.hold_periodic = self.period + p  # not yet: look again a return later
             elif code == ms.END_PERIODIC:
                 orbit = self._measure_orbit(self.run.x.copy(), p)
                 if orbit is not None and not _unstable(orbit):
@@ -730,6 +767,12 @@ class _Engine:
         """The linear tail proof from x (when the settings allow it)."""
         T = 2.0 * math.pi / self.p.gamma_r
         return self.s.linear_tail and self.tail.proves(x, TAIL_HORIZON * T)
+
+    def _period_proven(self, p: int) -> bool:
+        """A repeat after p periods (the kernel's ``measure.periodicity``) is a period-p state,
+        not one still approaching a period-q orbit, q | p (:func:`_divisors_steady`)."""
+        tol = self.s.periodicity_tol
+        return _divisors_steady(self.history, self.nhistory, p, AMBIGUOUS * tol, tol)
 
     def _measure_orbit(self, x0: np.ndarray, p: int) -> _Orbit | None:
         """The orbit the trajectory reached by itself (its samples repeat), measured over p
@@ -1128,7 +1171,7 @@ class _Engine:
             for j in range(n):
                 ring[(last - j) % ms.RING] = self.recent[RECENT - 1 - j]
             p = ms.periodicity(ring, n, last, x, self.s.periodicity_tol, self.nx)
-            if p > 0:
+            if p > 0 and self._period_proven(p):
                 orbit = self._measure_orbit(x, p)
                 if orbit is not None and not _unstable(orbit):
                     return self._classify_orbit(orbit)
