@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import csv
+import dataclasses
 import importlib.util
+import math
 import os
 import sys
 from pathlib import Path
@@ -126,6 +129,41 @@ def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
     assert settings.method == "event" and settings.max_periods == 1000
     spectra, default = mod.spectra_points(4)
     assert len(spectra) == 12 and default == mod.SolverSettings()
+
+
+def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_period(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mod = _load("orbit_audit")
+    assert mod.main(["--points", "6", "--out", str(tmp_path)]) == 0
+    md = (tmp_path / "orbit_audit.md").read_text()
+    # two orbits in the three spectra at 6 points each: A γ_r 1.44 (period 2) and 2.58
+    assert "**Same outcome and period as the reference: 2 of 2.**" in md
+    assert "(target 1e-06: met)" in md
+    assert "a proper divisor of their period (to 0.0001 of the state, or not reproduced): 0" in md
+    rows = list(csv.DictReader((tmp_path / "orbit_audit.csv").open()))
+    assert sorted(int(r["period"]) for r in rows) == [1, 2]
+    for r in rows:
+        assert r["same_period"] == "True" and float(r["diff_db"]) < 1e-8
+        # the period-2 orbit's states one period apart are distinct; period 1 has no divisor
+        if r["period"] == "2":
+            assert float(r["divisor_repeat"]) > 1e-2
+        else:
+            assert r["divisor_repeat"] == ""
+    # an orbit reported with twice its period is caught: its integrated states do not repeat
+    # after 2 periods but after 1 (a run with that history reports period 1: not reproduced)
+    p = mod.spectra_points(6)[0][2][2]  # A γ_r 2.58, period 1
+    settings = mod.SolverSettings()
+    r = mod.simulate_point(p, settings)
+    assert r.response_period == 1 and mod.divisor_repeat(p, settings, r) is None
+    doubled = dataclasses.replace(r, response_period=2)
+    assert math.isnan(mod.divisor_repeat(p, settings, doubled))
+    for argv, said in ((["--max", "-1"], "--max must be 0 (all) or more, got -1"),
+                       (["--tol", "0"], "--tol must be in (0, 1e-2), got 0"),
+                       (["--budget", "1"], "--budget must be at least 2, got 1")):  # fmt: skip
+        with pytest.raises(SystemExit) as exc:  # argparse's error, before anything runs
+            mod.main(argv)
+        assert exc.value.code == 2 and said in capsys.readouterr().err
 
 
 def test_run_command_table_has_the_cpu_floor() -> None:
