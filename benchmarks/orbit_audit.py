@@ -11,9 +11,11 @@ iteration) report ``periodic`` is checked twice:
   of ``--budget`` periods: the same outcome and period, and |ΔΓ| (the target: within 1e-6 dB);
 - against itself: the orbit integrated from its reported start (``final_state``, the states at
   its period ends from a recorded history) must not repeat after a proper divisor q of its
-  period p to 1e-4 of the state's size, which would make it a period-q orbit reported with a
-  multiple of its period (solver version 17 fixed five such claims of plain iteration in
-  Figure 5, docs/solvers.md, "A repeat that is a shorter period still being approached").
+  period p to 1000 times its ``periodicity_tol`` of the state's size (1e-6 by default): such
+  an orbit is a period-q orbit reported with a multiple of its period, while the states of a
+  period-p orbit converged to ``periodicity_tol`` stay farther apart (solver version 17 fixed
+  such claims of plain iteration, docs/solvers.md, "A repeat that is a shorter period still
+  being approached").
 
 ``--max`` N checks the first N periodic points (0: all). Writes ``orbit_audit[_<study>].md``
 and ``.csv``.
@@ -45,7 +47,7 @@ from benchmarks.point_engine import write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import PointResult, SolverSettings, simulate_point, warm_up  # noqa: E402
 
-DIVISOR_REPEAT = 1e-4  # a proper divisor's repeat this close (relative) is a shorter period
+DIVISOR_FACTOR = 1e3  # a proper divisor's repeat within this many periodicity_tol: shorter
 TARGET_DB = 1e-6
 LISTED_DB = 1e-8  # the table lists points off by more (the CSV has every point)
 
@@ -115,8 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     same = [r for r in rows if r["same_period"]]
     diffs = sorted(r["diff_db"] for r in same)
     # (a NaN, an orbit the recorded run did not reproduce, counts)
+    close = DIVISOR_FACTOR * audited.periodicity_tol
     multiple = [r for r in rows if r["divisor_repeat"] is not None
-                and not r["divisor_repeat"] > DIVISOR_REPEAT]  # fmt: skip
+                and not r["divisor_repeat"] > close]  # fmt: skip
     mode = "plain iteration (extrapolate off)" if args.plain else "its own settings"
     command = (f"--study {args.study}" if args.study else f"--points {args.points}") + (
         f" --max {args.max}" + (" --plain" if args.plain else "")
@@ -136,8 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         + (f"{diffs[len(diffs) // 2]:.3g}" if diffs else "–")
         + f" dB (target {TARGET_DB:g}: {'met' if worst <= TARGET_DB else 'NOT met'}).",
         "",
-        f"**Orbits that repeat after a proper divisor of their period (to {DIVISOR_REPEAT:g} of "
-        f"the state, or not reproduced): {len(multiple)}.**",
+        f"**Orbits that repeat after a proper divisor of their period (to {close:g} of the "
+        f"state, or not reproduced): {len(multiple)}.**",
         "",
         "| case | γ_r | period | Γ dB | periods | reference | period | periods | |ΔΓ| dB | "
         "divisor repeat |",

@@ -140,7 +140,7 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
     # two orbits in the three spectra at 6 points each: A γ_r 1.44 (period 2) and 2.58
     assert "**Same outcome and period as the reference: 2 of 2.**" in md
     assert "(target 1e-06: met)" in md
-    assert "a proper divisor of their period (to 0.0001 of the state, or not reproduced): 0" in md
+    assert "a proper divisor of their period (to 1e-06 of the state, or not reproduced): 0" in md
     rows = list(csv.DictReader((tmp_path / "orbit_audit.csv").open()))
     assert sorted(int(r["period"]) for r in rows) == [1, 2]
     for r in rows:

@@ -469,14 +469,24 @@ def test_a_repeat_near_a_shorter_period_waits_until_it_is_proven():
     scale = np.max(np.abs(X[-1]))
     assert np.max(np.abs(X[-1] - X[-3])) <= tol * scale < np.max(np.abs(X[-1] - X[-2]))
     assert not engine._divisors_steady(X, n, 2, near, tol)
-    # a period-2 orbit whose two states are as close (2e-8), reached long ago, is one
+    # A slower mode, -0.9985 (the θ 1 variant's gap 0.1, γ_r 0.62, which tight plain iteration
+    # called period 2): over 64 periods its 1-spaced differences shrink by only 10 %, over the
+    # ~300 the samples hold by 1.6-fold
+    S = fixed + np.outer((-0.9985) ** k * 1e-10, slow)
+    e = [np.max(np.abs(S[-1 - j] - S[-2 - j])) for j in (0, 64)]
+    assert e[1] / e[0] < 1.11
+    assert np.max(np.abs(S[-1] - S[-3])) <= 1e-12 * np.max(np.abs(S[-1]))
+    assert not engine._divisors_steady(S, n, 2, 1e3 * 1e-12, 1e-12)
+    # a period-2 orbit whose two states are as close (2e-8), reached before the samples
+    # kept, is one
     orbit = np.array([fixed, fixed + 2e-8 * slow])
-    Y = orbit[np.arange(n) % 2] + np.outer(0.8**k * 1e-14, fast)
+    Y = orbit[np.arange(n) % 2] + np.outer(0.8**k * 1e-40, fast)
     assert engine._divisors_steady(Y, n, 2, near, tol)
-    # ... but not while the 64 periods looked back over hold its approach (10 % off), nor
-    # with fewer samples than that
-    assert not engine._divisors_steady(Y[:-30], n - 30, 2, near, tol)
-    assert not engine._divisors_steady(Y, engine.RECENT, 2, near, tol)
+    # ... but not while the samples still hold its approach, nor with fewer than 2p + 1 of them
+    # a return back
+    Y = orbit[np.arange(n) % 2] + np.outer(0.8**k * 1e-14, fast)
+    assert not engine._divisors_steady(Y, n, 2, near, tol)
+    assert not engine._divisors_steady(Y[-7:], 7, 2, near, tol)
     # states farther apart than `near` are distinct whatever the history, and a difference
     # within 10·tol is the kernel's own divisor test (it reports the shorter period)
     far = np.array([fixed, 1.5 * fixed])[np.arange(n) % 2] + np.outer(0.5**k, fast)
@@ -499,6 +509,21 @@ def test_plain_iteration_reports_the_period_of_the_orbit_not_a_multiple(tol: flo
     assert r.response_period == plain.response_period == 1
     assert plain.floquet_multiplier == pytest.approx(r.floquet_multiplier, abs=1e-6)
     assert plain.transmittance_db == pytest.approx(r.transmittance_db, abs=1e3 * tol)
+
+
+def test_tight_plain_iteration_reports_a_slow_period_1_orbit_as_period_1():
+    # The θ 1 variant of Figure 5 (ξ 0.015) at gap 0.1, γ_r 0.62: a period-1 orbit of
+    # multiplier -0.9985. Plain iteration to 1e-12 reported period 2 after 10,143 periods (still
+    # after the 64-period look-back of the first version of the check: the 1-spaced
+    # differences shrink by 10 % there)
+    p = cell(theta=1.0, xi=0.015, gamma_r=0.62)
+    r = simulate_point(p)
+    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=20000))  # fmt: skip
+    assert r.outcome == tight.outcome == "periodic"
+    assert r.response_period == tight.response_period == 1
+    assert tight.floquet_multiplier == pytest.approx(0.9985, abs=2e-4)
+    assert tight.transmittance_db == pytest.approx(r.transmittance_db, abs=1e-9)
 
 
 def test_a_steadily_converging_orbit_is_not_claimed_irregular():

@@ -378,6 +378,17 @@ def _shrinking_p(history: np.ndarray, n: int, max_period: int) -> int:
 
 
 @njit(cache=True, nogil=True)
+def _envelope(history: np.ndarray, end: int, q: int, width: int) -> float:
+    """The largest q-spaced difference of the ``width`` samples of ``history`` ending at row
+    ``end``: over a whole return of a period-p orbit it sees every phase of a rotating
+    deviation."""
+    m = 0.0
+    for j in range(width):
+        m = max(m, _max_diff(history[end - j], history[end - j - q]))
+    return m
+
+
+@njit(cache=True, nogil=True)
 def _divisors_steady(history: np.ndarray, n: int, p: int, near: float, tol: float) -> bool:
     """Whether the newest of the newest-last samples (the last ``n`` of ``history`` valid),
     found to repeat after p periods, is a period-p state rather than one still approaching a
@@ -386,9 +397,11 @@ def _divisors_steady(history: np.ndarray, n: int, p: int, near: float, tol: floa
     still shrink with it (Figure 5 at θ 0.5, gap 0.1, γ_r 3.42: period 2 reported, the state 22
     times farther from the period-1 orbit than periodicity_tol); a period-p orbit keeps its
     q-spaced differences. So wherever a q-spaced difference is within ``near`` (relative; and
-    beyond 10·``tol``, the kernel's own divisor test) it must have been the same to 10 %
-    ``RECENT`` periods earlier (the nearest multiple of p, at least 2p; a slow mode's
-    differences shrink by more over 64 periods wherever its multiplier is below 0.998)."""
+    beyond 10·``tol``, the kernel's own divisor test) its envelope over the last return (the
+    largest of the last p; a deviation that rotates makes single differences rise and fall) must
+    be that of a return as long ago as the samples reach to 10 % (a multiple of p periods, at
+    least 2p: about 300 when they are all kept, where a slow mode's differences shrink by more
+    wherever its multiplier is below 0.9997)."""
     last = history.shape[0] - 1
     scale = 1e-300
     for i in range(history.shape[1]):
@@ -399,11 +412,12 @@ def _divisors_steady(history: np.ndarray, n: int, p: int, near: float, tol: floa
         e0 = _max_diff(history[last], history[last - q])
         if e0 > near * scale or e0 <= 10.0 * tol * scale:
             continue
-        back = max(RECENT // p, 2) * p
-        if back + q > n - 1:
+        back = (n - 1 - q - p) // p * p
+        if back < 2 * p:
             return False
-        e1 = _max_diff(history[last - back], history[last - back - q])
-        if abs(e1 - e0) > 0.1 * e0:
+        now = _envelope(history, last, q, p)
+        then = _envelope(history, last - back, q, p)
+        if abs(then - now) > 0.1 * now:
             return False
     return True
 
