@@ -73,6 +73,35 @@ def divisor_repeat(p: CellParams, settings: SolverSettings, r: PointResult) -> f
     return min(float(np.max(np.abs(ends[q] - ends[0]))) / scale for q in qs)
 
 
+def audit(
+    points: list[tuple[str, float, CellParams]],
+    audited: SolverSettings,
+    reference: SolverSettings,
+    most: int = 0,
+) -> list[dict]:
+    """A row for each of the (first ``most``, 0: all) points ``audited`` reports periodic: its
+    orbit, the reference's answer, and the orbit's closest repeat after a proper divisor of its
+    period (:func:`divisor_repeat`)."""
+    rows = []
+    for case, g, p in points:
+        if most and len(rows) >= most:
+            break
+        r = simulate_point(p, audited)
+        if r.outcome != "periodic":
+            continue
+        ref = simulate_point(p, reference)
+        same = ref.outcome == "periodic" and ref.response_period == r.response_period
+        rows.append(dict(
+            case=case, gamma_r=g, period=r.response_period, db=r.transmittance_db,
+            multiplier=r.floquet_multiplier, periods=r.periods, ref_outcome=ref.outcome,
+            ref_period=ref.response_period, ref_db=ref.transmittance_db, ref_periods=ref.periods,
+            same_period=same,
+            diff_db=abs(ref.transmittance_db - r.transmittance_db) if same else None,
+            divisor_repeat=divisor_repeat(p, audited, r),
+        ))  # fmt: skip
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", help="a shipped grid study instead of the three spectra")
@@ -96,23 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     reference = dataclasses.replace(audited, extrapolate=False, periodicity_tol=args.tol,
                                     max_periods=args.budget)  # fmt: skip
     warm_up(audited.method)
-    rows = []
-    for case, g, p in points:
-        if args.max and len(rows) >= args.max:
-            break
-        r = simulate_point(p, audited)
-        if r.outcome != "periodic":
-            continue
-        ref = simulate_point(p, reference)
-        same = ref.outcome == "periodic" and ref.response_period == r.response_period
-        rows.append(dict(
-            case=case, gamma_r=g, period=r.response_period, db=r.transmittance_db,
-            multiplier=r.floquet_multiplier, periods=r.periods, ref_outcome=ref.outcome,
-            ref_period=ref.response_period, ref_db=ref.transmittance_db, ref_periods=ref.periods,
-            same_period=same,
-            diff_db=abs(ref.transmittance_db - r.transmittance_db) if same else None,
-            divisor_repeat=divisor_repeat(p, audited, r),
-        ))  # fmt: skip
+    rows = audit(points, audited, reference, args.max)
     n = len(rows)
     same = [r for r in rows if r["same_period"]]
     diffs = sorted(r["diff_db"] for r in same)

@@ -166,6 +166,26 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
         assert exc.value.code == 2 and said in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a line of Figure 5 (291 points) and a tight reference for each orbit
+def test_every_orbit_of_a_figure_5_line_has_the_tight_references_period() -> None:
+    # θ 0.5, gap 0.1: 109 orbits of period 1 to 8, near period doublings and roots of unity;
+    # solver version 16's tight reference (plain iteration to 1e-12) reported a multiple of the
+    # period at 8 of them (γ_r 1, 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
+    mod = _load("orbit_audit")
+    points, settings = mod.study_points("paper-fig5-gaps")
+    line = [(c, g, p) for c, g, p in points if p.theta == 0.5 and p.g1 == 0.1]
+    assert len(line) == 291
+    reference = dataclasses.replace(settings, extrapolate=False, periodicity_tol=1e-12,
+                                    max_periods=20000)  # fmt: skip
+    rows = mod.audit(line, settings, reference)
+    assert len(rows) >= 100 and {r["period"] for r in rows} >= {1, 2, 3, 4, 8}
+    for r in rows:
+        assert r["same_period"], r
+        assert r["diff_db"] <= 1e-7, r
+        # the states after a proper divisor of the period are distinct (or there is none)
+        assert r["divisor_repeat"] is None or r["divisor_repeat"] > 1e-6, r
+
+
 def test_run_command_table_has_the_cpu_floor() -> None:
     rc = _load("run_command")
     rows = [

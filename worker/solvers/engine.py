@@ -15,8 +15,9 @@ is proven:
     ``periodicity_tol`` (allowing for the estimated contraction), have the same impacts per
     period as the trajectory, and lie where the trajectory's own contraction is heading, so
     only an orbit reached from the point's start is reported. A sequence that repeats by
-    itself (``measure.periodicity``) needs no extrapolation. An extrapolated orbit must also
-    attract: its monodromy matrix (finite differences) has a spectral radius below 1, the
+    itself (``measure.periodicity``) needs no extrapolation, once the repeat is shown not to be
+    a shorter period still being approached (:func:`_divisors_steady`). An extrapolated orbit
+    must also attract: its monodromy matrix (finite differences) has a spectral radius below 1, the
     reported Floquet multiplier; where the map is not smooth (no Jacobian) the orbit is
     reported only once the trajectory has reached it. The orbit is then measured over p
     periods; an orbit reached by itself gets its monodromy radius too where the map is smooth
