@@ -219,7 +219,7 @@ def compile_helpers() -> None:
     there. A point calls them only once it extrapolates an orbit, so a worker loads them then
     (~0.35 s); ``simulate.warm_up`` calls this so that on a fresh cache the process that warms up
     compiles them once (~12 s on this machine), not every worker at its first periodic point."""
-    if all(on_disk(f) for f in (_rre, _converging_p, _shrinking_p, _max_diff)):
+    if all(on_disk(f) for f in (_rre, _converging_p, _shrinking_p, _divisors_steady, _max_diff)):
         return
     X = np.array([[0.0, 1.0], [1.0, 0.5], [1.5, 0.25], [1.75, 0.125]])
     rre(X)
@@ -728,10 +728,10 @@ class _Engine:
                     return self._classify_orbit(orbit)
                 if orbit is not None:
                     # an unstable orbit, approached along its stable directions: the trajectory
-                    # leaves it (Figure 5 at θ 0.3, gap 0.7, γ_r 1.18: period 6, multiplier
-                    # 1.053; plain iteration to periodicity_tol 1e-12 settles after 2,643
-                    # periods on a stable period-6 orbit 0.0018 dB away). Not signalled again
-                    # while it is near.
+                    # leaves it. Not signalled again while it is near. (The case that showed
+                    # it, Figure 5 at θ 0.3, gap 0.7, γ_r 1.18, "period 6, multiplier 1.053",
+                    # was a period-3 orbit past its period doubling, which _period_proven now
+                    # refuses before measuring; no unsettled point of Figure 5 names one since.)
                     self.hold_periodic = self.period + UNSTABLE_HOLD * p
                     self.passed_unstable = orbit
             elif code == ms.END_CANDIDATE:
