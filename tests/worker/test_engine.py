@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -555,6 +556,16 @@ def test_an_unstable_orbit_the_samples_reach_is_not_reported():
         assert r.outcome == "unsettled" and r.transmittance_db_se is not None
         assert "still converging to a period-6 orbit" in r.reason
         assert "unstable" not in r.reason
+    # With periodicity_tol 1e-6 the samples do repeat after 3 periods: the period-3 orbit is
+    # measured, found unstable and not reported, and the reason names what the response passed
+    for s in (SolverSettings(periodicity_tol=1e-6),
+              SolverSettings(extrapolate=False, periodicity_tol=1e-6)):  # fmt: skip
+        loose = simulate_point(p, s)
+        assert loose.outcome == "unsettled" and loose.response_period == 0
+        assert loose.transmittance_db == r.transmittance_db  # the same trajectory's windows
+        m = re.search(r"near an unstable period-(\d+) orbit \(multiplier ([0-9.]+)\)", loose.reason)
+        assert m is not None, loose.reason
+        assert int(m.group(1)) == 3 and 1.02 < float(m.group(2)) < 1.03
     # (a budget whose quarter, the earliest irregular claim, is past that transient chaos)
     tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
                                              max_periods=12000))  # fmt: skip

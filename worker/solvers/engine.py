@@ -731,7 +731,8 @@ class _Engine:
                     # leaves it. Not signalled again while it is near. (The case that showed
                     # it, Figure 5 at θ 0.3, gap 0.7, γ_r 1.18, "period 6, multiplier 1.053",
                     # was a period-3 orbit past its period doubling, which _period_proven now
-                    # refuses before measuring; no unsettled point of Figure 5 names one since.)
+                    # refuses before measuring. With periodicity_tol 1e-6 its samples repeat
+                    # after 3 periods, and the reason names that period-3 orbit.)
                     self.hold_periodic = self.period + UNSTABLE_HOLD * p
                     self.passed_unstable = orbit
             elif code == ms.END_CANDIDATE:
