@@ -2,6 +2,7 @@
 
     python benchmarks/irregular_budget.py [--points 40] [--max 25] [--out benchmarks/results]
     python benchmarks/irregular_budget.py --study paper-fig5-gaps [--max 0]
+    python benchmarks/irregular_budget.py --study nightly/irregular [--max 0]
 
 The three spectra of ``point_engine.py`` (γ_r 0.3–6) run with the default settings (or, with
 ``--study``, every point of a shipped grid study with its own settings; ``--max 0``: re-run
@@ -50,11 +51,19 @@ def spectra_points(n: int) -> tuple[list[tuple[str, float, CellParams]], SolverS
 
 def study_points(name: str) -> tuple[list[tuple[str, float, CellParams]], SolverSettings]:
     """Every point of a shipped grid study (its coordinates but γ_r as the case) and its
-    settings."""
+    settings; ``nightly/NAME`` names a study of the nightly suite."""
+    from service.regression.suite import load_suite
     from service.studies.schema import load_study
     from service.studies.shipped import resolve_study_file
 
-    study = load_study(resolve_study_file(name))
+    if name.startswith("nightly/"):
+        entries = {e.stem: e for e in load_suite()}
+        stem = name.removeprefix("nightly/")
+        if stem not in entries:
+            raise SystemExit(f"--study {name}: the nightly suite has {', '.join(entries)}")
+        study = entries[stem].study
+    else:
+        study = load_study(resolve_study_file(name))
     grid = study.points(0, study.size, grid=True)
     # the case: the coordinates other than γ_r that vary over the study
     varying = [k for k in grid[0] if k != "gamma_r" and len({str(kw[k]) for kw in grid}) > 1]
@@ -147,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
             + f" | {r['long_se'] if r['long_se'] is None else format(r['long_se'], '.3g')} | "
             f"{r['long_periods']} | " + ("–" if r["z"] is None else f"{r['z']:.2f}") + " |"
         )
-    name = f"irregular_budget_{args.study}" if args.study else "irregular_budget"
+    name = "irregular_budget_" + args.study.replace("/", "-") if args.study else "irregular_budget"
     write_results(args.out, name, lines, rows)
     return 0
 

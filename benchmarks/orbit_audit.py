@@ -3,7 +3,8 @@
     python benchmarks/orbit_audit.py [--study paper-fig5-gaps] [--max 0] [--plain]
                                      [--tol 1e-12] [--budget 20000] [--out benchmarks/results]
 
-Every point of a shipped grid study (with ``--study``; else the three spectra of
+Every point of a shipped grid study (with ``--study``, ``nightly/NAME`` for one of the nightly
+suite; else the three spectra of
 ``point_engine.py``) that its own settings (with ``--plain``: extrapolation off, plain
 iteration) report ``periodic`` is checked twice:
 
@@ -134,6 +135,10 @@ def main(argv: list[str] | None = None) -> int:
     multiple = [r for r in rows if r["divisor_repeat"] is not None
                 and not r["divisor_repeat"] > close]  # fmt: skip
     mode = "plain iteration (extrapolate off)" if args.plain else "its own settings"
+    mode += f" (`{audited.method}`, periodicity_tol {audited.periodicity_tol:g})"
+    # the 1e-6 dB target is the default's; a looser periodicity_tol bounds the state's
+    # distance to the orbit only to itself, Γ to about 20/ln 10 ≈ 8.7 dB times that
+    loose = audited.periodicity_tol > SolverSettings().periodicity_tol
     command = (f"--study {args.study}" if args.study else f"--points {args.points}") + (
         f" --max {args.max}" + (" --plain" if args.plain else "")
         + f" --tol {args.tol:g} --budget {args.budget}"
@@ -150,7 +155,14 @@ def main(argv: list[str] | None = None) -> int:
         f"**Same outcome and period as the reference: {len(same)} of {n}.** Over those, "
         f"|ΔΓ| max {worst:.3g} dB, median "
         + (f"{diffs[len(diffs) // 2]:.3g}" if diffs else "–")
-        + f" dB (target {TARGET_DB:g}: {'met' if worst <= TARGET_DB else 'NOT met'}).",
+        + f" dB (target {TARGET_DB:g}: {'met' if worst <= TARGET_DB else 'NOT met'}"
+        + (
+            f"; the target is the default periodicity_tol's, this study asks for "
+            f"{audited.periodicity_tol:g}"
+            if loose
+            else ""
+        )
+        + ").",
         "",
         f"**Orbits that repeat after a proper divisor of their period (to {close:g} of the "
         f"state, or not reproduced): {len(multiple)}.**",
@@ -172,7 +184,9 @@ def main(argv: list[str] | None = None) -> int:
         )
     lines += ["", f"(The table lists the points off by more than {LISTED_DB:g} dB, of another "
               "period, or repeating early; the CSV has every point.)"]  # fmt: skip
-    suffix = ("_" + args.study if args.study else "") + ("_plain" if args.plain else "")
+    suffix = ("_" + args.study.replace("/", "-") if args.study else "") + (
+        "_plain" if args.plain else ""
+    )
     write_results(args.out, f"orbit_audit{suffix}", lines, rows)
     return 0
 

@@ -129,6 +129,13 @@ def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
     assert settings.method == "event" and settings.max_periods == 1000
     spectra, default = mod.spectra_points(4)
     assert len(spectra) == 12 and default == mod.SolverSettings()
+    # a study of the nightly suite, with its own method
+    night, nsettings = mod.study_points("nightly/full-gaps")
+    assert nsettings.method == "exponential"
+    assert {p.coupling for _, _, p in night} == {"full"}
+    assert {p.theta for _, _, p in night} == {0.2, 0.5}
+    with pytest.raises(SystemExit, match="nightly/nope: the nightly suite has .*full-gaps"):
+        mod.study_points("nightly/nope")
 
 
 def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_period(
