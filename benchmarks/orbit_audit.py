@@ -2,10 +2,11 @@
 
     python benchmarks/orbit_audit.py [--study paper-fig5-gaps] [--max 0] [--plain]
                                      [--tol 1e-12] [--budget 20000] [--out benchmarks/results]
+    python benchmarks/orbit_audit.py --random 300 --seed 4
 
-Every point of a shipped grid study (with ``--study``, ``nightly/NAME`` for one of the nightly
-suite; else the three spectra of
-``point_engine.py``) that its own settings (with ``--plain``: extrapolation off, plain
+Every point of a shipped grid study (with ``--study``; ``nightly/NAME`` for one of the nightly
+suite), of N random cells over wide ranges (``--random N``, :func:`random_points`) or else of
+the three spectra of ``point_engine.py`` that its own settings (with ``--plain``: extrapolation off, plain
 iteration) report ``periodic`` is checked twice:
 
 - against plain iteration (``extrapolate`` off) to ``periodicity_tol`` ``--tol`` with a budget
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import sys
@@ -103,10 +105,33 @@ def audit(
     return rows
 
 
+def random_points(n: int, seed: int) -> list[tuple[str, float, CellParams]]:
+    """n random cells (case: their parameters as JSON): θ 0.01–10, σ 0.003–1, γ_s 0.2–5,
+    ξ 0.001–0.3, g1 0.001–5 (log-uniform; g2 = g1, or for 30 % g1 times 0.3–3), γ_r 0.2–6,
+    1–10 modes, either coupling."""
+    rng = np.random.default_rng(seed)
+
+    def log_uniform(a: float, b: float) -> float:
+        return float(np.exp(rng.uniform(np.log(a), np.log(b))))
+
+    pts = []
+    for _ in range(n):
+        g1 = log_uniform(0.001, 5.0)
+        g2 = g1 * (log_uniform(0.3, 3.0) if rng.random() < 0.3 else 1.0)
+        kw = dict(theta=log_uniform(0.01, 10.0), sigma=log_uniform(0.003, 1.0),
+                  gamma_s=log_uniform(0.2, 5.0), xi=log_uniform(0.001, 0.3), g1=g1, g2=g2,
+                  gamma_r=log_uniform(0.2, 6.0), coupling=str(rng.choice(["paper", "full"])),
+                  modes=int(rng.integers(1, 11)))  # fmt: skip
+        pts.append((json.dumps(kw), kw["gamma_r"], CellParams(**kw)))
+    return pts
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", help="a shipped grid study instead of the three spectra")
     ap.add_argument("--points", type=int, default=40, help="points per spectrum (no --study)")
+    ap.add_argument("--random", type=int, default=0, help="N random cells instead (--seed)")
+    ap.add_argument("--seed", type=int, default=4, help="the random cells' seed")
     ap.add_argument("--max", type=int, default=0, help="periodic points to check (0: all)")
     ap.add_argument("--plain", action="store_true", help="audit plain iteration itself")
     ap.add_argument("--tol", type=float, default=1e-12, help="the reference's periodicity_tol")
@@ -119,8 +144,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--tol must be in (0, 1e-2), got {args.tol:g}")
     if args.budget < 2:
         ap.error(f"--budget must be at least 2, got {args.budget}")
+    if args.random < 0 or (args.random and args.study):
+        ap.error(f"--random must be 0 (off) or more, and not with --study; got {args.random}")
     t0 = time.perf_counter()
-    points, audited = study_points(args.study) if args.study else spectra_points(args.points)
+    if args.random:
+        points, audited = random_points(args.random, args.seed), SolverSettings()
+    elif args.study:
+        points, audited = study_points(args.study)
+    else:
+        points, audited = spectra_points(args.points)
     if args.plain:
         audited = dataclasses.replace(audited, extrapolate=False)
     reference = dataclasses.replace(audited, extrapolate=False, periodicity_tol=args.tol,
@@ -139,11 +171,17 @@ def main(argv: list[str] | None = None) -> int:
     # the 1e-6 dB target is the default's; a looser periodicity_tol bounds the state's
     # distance to the orbit only to itself, Γ to about 20/ln 10 ≈ 8.7 dB times that
     loose = audited.periodicity_tol > SolverSettings().periodicity_tol
-    command = (f"--study {args.study}" if args.study else f"--points {args.points}") + (
+    if args.random:
+        source = f"--random {args.random} --seed {args.seed}"
+        where = f"{args.random} random cells (seed {args.seed})"
+    elif args.study:
+        source, where = f"--study {args.study}", f"`{args.study}`"
+    else:
+        source, where = f"--points {args.points}", "the three spectra"
+    command = source + (
         f" --max {args.max}" + (" --plain" if args.plain else "")
         + f" --tol {args.tol:g} --budget {args.budget}"
     )  # fmt: skip
-    where = f"`{args.study}`" if args.study else "the three spectra"
     worst = max(diffs) if diffs else math.nan
     lines = [
         "# Orbit audit: every reported orbit against plain iteration, and against its own period",
@@ -184,8 +222,10 @@ def main(argv: list[str] | None = None) -> int:
         )
     lines += ["", f"(The table lists the points off by more than {LISTED_DB:g} dB, of another "
               "period, or repeating early; the CSV has every point.)"]  # fmt: skip
-    suffix = ("_" + args.study.replace("/", "-") if args.study else "") + (
-        "_plain" if args.plain else ""
+    suffix = (
+        ("_" + args.study.replace("/", "-") if args.study else "")
+        + (f"_random{args.seed}" if args.random else "")
+        + ("_plain" if args.plain else "")
     )
     write_results(args.out, f"orbit_audit{suffix}", lines, rows)
     return 0

@@ -165,12 +165,23 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
     assert r.response_period == 1 and mod.divisor_repeat(p, settings, r) is None
     doubled = dataclasses.replace(r, response_period=2)
     assert math.isnan(mod.divisor_repeat(p, settings, doubled))
+    both = ["--random", "3", "--study", "quick"]
     for argv, said in ((["--max", "-1"], "--max must be 0 (all) or more, got -1"),
                        (["--tol", "0"], "--tol must be in (0, 1e-2), got 0"),
-                       (["--budget", "1"], "--budget must be at least 2, got 1")):  # fmt: skip
+                       (["--budget", "1"], "--budget must be at least 2, got 1"),
+                       (["--random", "-3"], "--random must be 0 (off) or more"),
+                       (both, "and not with --study")):  # fmt: skip
         with pytest.raises(SystemExit) as exc:  # argparse's error, before anything runs
             mod.main(argv)
         assert exc.value.code == 2 and said in capsys.readouterr().err
+    # random cells: the same for the same seed, within the documented ranges
+    cells = mod.random_points(50, 4)
+    assert [c for c, _, _ in cells] == [c for c, _, _ in mod.random_points(50, 4)]
+    assert [c for c, _, _ in cells] != [c for c, _, _ in mod.random_points(50, 5)]
+    for _, g, p in cells:
+        assert g == p.gamma_r and 0.2 <= g <= 6.0 and 0.01 <= p.theta <= 10.0
+        assert 0.001 <= p.xi <= 0.3 and 1 <= p.modes <= 10 and p.coupling in ("paper", "full")
+        assert 0.3 <= p.g2 / p.g1 <= 3.0
 
 
 @pytest.mark.slow  # a line of Figure 5 (291 points) and a tight reference for each orbit

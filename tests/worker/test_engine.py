@@ -453,6 +453,70 @@ def test_steadily_shrinking_differences_show_a_long_orbit_being_approached():
     assert engine._shrinking_p(circled, n, ms.MAX_PERIOD) == 0
 
 
+def test_differences_that_creep_down_show_an_orbit_approached_at_a_multiplier_near_1():
+    rng = np.random.default_rng(7)
+    n, nx = engine.HISTORY, 6
+    fixed = rng.normal(size=nx)
+    dev = rng.normal(size=nx)
+    # a period-1 state approached at 0.9985 a period from 2 % of the state's size: the
+    # differences (~3e-5 of it) shrink by only 1 % over seven returns and 5 % over the last
+    # 32 periods
+    X = np.array([fixed + 0.9985 ** (k - n) * 0.02 * dev for k in range(n)])
+    assert engine._shrinking_p(X, n, ms.MAX_PERIOD) == 0
+    assert engine._converging_p(X[-engine.RECENT :], engine.RECENT // 2 - 1) == 0
+    assert engine._creeping_p(X, n, ms.MAX_PERIOD) == 1
+    # a period-3 orbit approached as slowly; its 1- and 2-spaced differences do not shrink
+    orbit = rng.normal(size=(3, nx))
+    devs = rng.normal(size=(3, nx))
+    Y = np.array([orbit[k % 3] + 0.9985 ** (k - n) * 0.04 * devs[k % 3] for k in range(n)])
+    assert engine._converging_p(Y[-engine.RECENT :], engine.RECENT // 2 - 1) == 0
+    assert engine._creeping_p(Y, n, ms.MAX_PERIOD) == 3
+    # not while the samples kept hold differences that are a sizeable part of the state (an
+    # approach still young, or chaos) ...
+    far = np.array([fixed + 0.95 ** (k - n) * dev for k in range(n)])
+    assert engine._creeping_p(far, n, ms.MAX_PERIOD) == 0
+    # ... nor for noise, a deviation that rotates at a constant distance (a torus), or one
+    # that grows
+    for seed in range(20):
+        noise = fixed + 1e-4 * np.random.default_rng(seed).normal(size=(n, nx))
+        assert engine._creeping_p(noise, n, ms.MAX_PERIOD) == 0
+    a, b = rng.normal(size=nx), rng.normal(size=nx)
+    torus = np.array([fixed + 1e-4 * (np.cos(0.3 * k) * a + np.sin(0.3 * k) * b)
+                      for k in range(n)])  # fmt: skip
+    assert engine._creeping_p(torus, n, ms.MAX_PERIOD) == 0
+    grows = np.array([fixed + 1.001 ** (k - n) * 0.02 * dev for k in range(n)])
+    assert engine._creeping_p(grows, n, ms.MAX_PERIOD) == 0
+    # nor where they fall too little to tell from a slow modulation (0.9998 a period: 5 %
+    # over the stretches)
+    slow = np.array([fixed + 0.9998 ** (k - n) * 0.02 * dev for k in range(n)])
+    assert engine._creeping_p(slow, n, ms.MAX_PERIOD) == 0
+    # and not before each of the eight stretches holds a return
+    assert engine._creeping_p(X, 8, ms.MAX_PERIOD) == 0
+
+
+def test_a_slow_approach_is_not_claimed_irregular_by_tight_plain_iteration():
+    # a random cell of the full coupling (3 modes, ξ 0.0032): its period-1 orbit attracts at
+    # 0.9979 a period. Newton finds it at once; plain iteration to 1e-12 needs 12,182 periods.
+    # Its windows' Γ drift so smoothly (lag-1 correlation near 1) that the trend test passed,
+    # and solver version 17 claimed it irregular at 5,020 periods, 0.094 dB off
+    p = CellParams(theta=1.4488928688435572, sigma=0.11565583381841693,
+                   gamma_s=0.9021470911095106, xi=0.0032280050326287174,
+                   g1=0.005499961406079232, g2=0.003869274879351087,
+                   gamma_r=4.248654640085492, coupling="full", modes=3)  # fmt: skip
+    d = simulate_point(p)
+    assert d.outcome == "periodic" and d.response_period == 1
+    assert 0.997 < d.floquet_multiplier < 0.999
+    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=20000))  # fmt: skip
+    assert tight.outcome == "periodic" and tight.response_period == 1
+    assert tight.transmittance_db == pytest.approx(d.transmittance_db, abs=1e-8)
+    # with a budget that ends before: unsettled, and the reason says what it approaches
+    short = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=8000))  # fmt: skip
+    assert short.outcome == "unsettled"
+    assert "still converging to a period-1 orbit" in short.reason
+
+
 def test_a_repeat_near_a_shorter_period_waits_until_it_is_proven():
     rng = np.random.default_rng(11)
     n, nx, tol = engine.HISTORY, 6, 1e-9

@@ -95,6 +95,16 @@ RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
 SHRINK_RETURNS = 6
 SHRINK_FACTOR = 10.0
 HISTORY = (SHRINK_RETURNS + 2) * ms.MAX_PERIOD
+# ... and while, over all the samples kept, the p-spaced differences stay within CREEP_NEAR of
+# the state and their largest in each of CREEP_BLOCKS consecutive stretches falls from one
+# stretch to the next, to at most CREEP_DROP of the oldest's (_creeping_p): a slow approach (a
+# multiplier up to ~0.9992 a period) that shrinks them too little for the tests above, while
+# the windows' Γ drifts too smoothly for the trend test. (A response whose differences are
+# only modulated slowly, near a period-13 orbit at Figure 5's θ 0.3, gap 1, γ_r 1.2, falls
+# by 5-7 % over the stretches while it does.)
+CREEP_NEAR = 1e-2
+CREEP_BLOCKS = 8
+CREEP_DROP = 0.8
 MAX_CYCLES = 4  # extrapolate-and-confirm cycles per candidate
 MAX_FIT = 1e-2  # a first extrapolation must fit the sequence to this relative residual
 MAX_RRE = 8  # samples (p apart) one extrapolation uses at most
@@ -219,12 +229,16 @@ def compile_helpers() -> None:
     there. A point calls them only once it extrapolates an orbit, so a worker loads them then
     (~0.35 s); ``simulate.warm_up`` calls this so that on a fresh cache the process that warms up
     compiles them once (~12 s on this machine), not every worker at its first periodic point."""
-    if all(on_disk(f) for f in (_rre, _converging_p, _shrinking_p, _divisors_steady, _max_diff)):
+    if all(
+        on_disk(f)
+        for f in (_rre, _converging_p, _shrinking_p, _creeping_p, _divisors_steady, _max_diff)
+    ):
         return
     X = np.array([[0.0, 1.0], [1.0, 0.5], [1.5, 0.25], [1.75, 0.125]])
     rre(X)
     _converging_p(X, 1)
     _shrinking_p(X, 4, 1)
+    _creeping_p(X, 4, 1)
     _divisors_steady(X, 4, 2, 1e-6, 1e-9)
     _max_diff(X[0], X[1])
 
@@ -374,6 +388,39 @@ def _shrinking_p(history: np.ndarray, n: int, max_period: int) -> int:
                 break
             prev = d
         if steady and newest * SHRINK_FACTOR <= prev:
+            return p
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _creeping_p(history: np.ndarray, n: int, max_period: int) -> int:
+    """The smallest p whose p-spaced differences of the newest-last samples (the last ``n`` of
+    ``history`` valid) are all within CREEP_NEAR of the state and whose largest in each of
+    CREEP_BLOCKS consecutive stretches of at least a return fell from the stretch before, to at
+    most CREEP_DROP of the oldest's: the response creeps towards a period-p orbit (0: none).
+    Chaos keeps its differences near the state's size; a quasi-periodic response keeps their
+    stretches' largest level."""
+    last = history.shape[0] - 1
+    scale = 1e-300
+    for i in range(history.shape[1]):
+        scale = max(scale, abs(history[last, i]))
+    for p in range(1, max_period + 1):
+        width = (n - p) // CREEP_BLOCKS  # differences per stretch
+        if width < p:
+            break
+        prev = first = np.inf
+        creeps = True
+        for b in range(CREEP_BLOCKS - 1, -1, -1):  # the oldest stretch first
+            top = 0.0
+            for j in range(b * width, (b + 1) * width):
+                top = max(top, _max_diff(history[last - j], history[last - j - p]))
+            if top > CREEP_NEAR * scale or top >= prev:
+                creeps = False
+                break
+            if b == CREEP_BLOCKS - 1:
+                first = top
+            prev = top
+        if creeps and prev <= CREEP_DROP * first:
             return p
     return 0
 
@@ -1157,7 +1204,8 @@ class _Engine:
         if self.nrecent < RECENT:
             return 0
         p = int(_converging_p(self.recent, min(ms.MAX_PERIOD, RECENT // 2 - 1)))
-        return p or int(_shrinking_p(self.history, self.nhistory, ms.MAX_PERIOD))
+        p = p or int(_shrinking_p(self.history, self.nhistory, ms.MAX_PERIOD))
+        return p or int(_creeping_p(self.history, self.nhistory, ms.MAX_PERIOD))
 
     def _coexistence_note(self) -> str:
         """Irregular motion where the impact-free steady state is also admissible may be
