@@ -102,6 +102,33 @@ def test_history_is_the_reported_response(method):
     assert simulate_point(cell(gamma_r=0.85)).history is None
 
 
+def test_the_history_of_an_orbit_with_many_events_a_period_is_whole():
+    # a random cell of orbit_audit (--random 3000 --seed 5): 10 modes, gaps 0.0016, a period-3
+    # orbit with more events a period than the history buffer's 64: its oldest rows dropped
+    # out, and the history began 1.1 periods into the orbit
+    p = CellParams(theta=0.044887161146510715, sigma=0.584553291097932,
+                   gamma_s=2.894713468440343, xi=0.013697696577168397,
+                   g1=0.0015904847533030346, g2=0.0015904847533030346,
+                   gamma_r=0.6677594811720176, coupling="full", modes=10)  # fmt: skip
+    r = simulate_point(p, history_periods=3)
+    assert r.outcome == "periodic" and r.response_period == 3
+    h = r.history
+    T = 2 * math.pi / p.gamma_r
+    assert len(h["events"]) > 3 * 64
+    # from one sub-grid interval into the orbit to its end, and the states at its period ends
+    # repeat after 3 periods, not after 1
+    assert h["tau"][0] <= T / 32 and h["tau"][-1] == pytest.approx(3 * T, rel=1e-9)
+    ends = [h["state"][np.flatnonzero(np.isclose(h["tau"], k * T, rtol=0, atol=1e-9 * T))[-1]]
+            for k in (1, 3)]  # fmt: skip
+    scale = np.max(np.abs(r.final_state))
+    assert np.max(np.abs(ends[1] - r.final_state)) <= 1e-8 * scale
+    assert np.max(np.abs(ends[0] - r.final_state)) > 1e-3 * scale
+    # early stop off: the run's last 3 periods, whole too
+    off = simulate_point(p, SolverSettings(early_stop=False, max_periods=300), history_periods=3)
+    assert off.history["tau"][0] <= T / 32
+    assert off.history["tau"][-1] == pytest.approx(3 * T, rel=1e-9)
+
+
 def test_history_of_a_linear_point_is_the_closed_form_orbit():
     p = cell(gamma_r=4.5, g1=1e6, g2=1e6)
     r = simulate_point(p, history_periods=1)

@@ -1318,6 +1318,27 @@ def _with_reference(res: PointResult, tail: LinearTail) -> PointResult:
     return res
 
 
+def _overflowed(run: KernelRun) -> bool:
+    """Whether the run's history buffer dropped rows (more than it was sized for)."""
+    return int(run.kst[ms.K_HIST]) > run.hist.shape[0]
+
+
+def _record_history(run: KernelRun, start: np.ndarray, periods: int) -> None:
+    """Record the history of ``periods`` periods from ``start``, whole: the buffer is sized
+    for the steps and up to ``history_rows_per_period`` events a period, and a chattering
+    orbit has more, so an overflow is run again with room for every row it wrote."""
+    cap = periods * run.history_rows_per_period()
+    while True:
+        run.reset(start)
+        run.keep_history(cap)
+        rows = np.zeros((periods, ms.ROW))
+        samples = np.zeros((periods, run.nx))
+        run.advance(periods, False, 0, rows, samples)
+        if not _overflowed(run):
+            return
+        cap = int(run.kst[ms.K_HIST])
+
+
 def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
               settings: SolverSettings, x0: np.ndarray, history_periods: int = 0,
               limits: PointLimits | None = None,
@@ -1398,11 +1419,12 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     if history_periods and outcome != "failed" and settings.early_stop:
         if run is None:
             run = make_run()
-        run.reset(history_start)
-        run.keep_history(history_periods * run.history_rows_per_period())
-        rows = np.zeros((history_periods, ms.ROW))
-        samples = np.zeros((history_periods, run.nx))
-        run.advance(history_periods, False, 0, rows, samples)
+        _record_history(run, history_start, history_periods)
+    elif (history_periods and run is not None and eng is not None and _overflowed(run)
+          and eng.nhistory > history_periods):  # fmt: skip
+        # early stop off: the main run recorded its last periods, but with more events than
+        # budgeted the oldest rows dropped out. Run them again from their first period end.
+        _record_history(run, eng.history[-1 - history_periods].copy(), history_periods)
     if history_periods and run is not None:
         res.history = run.history(p, kappa)
     _with_reference(res, tail)
