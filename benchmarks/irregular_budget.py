@@ -3,16 +3,19 @@
     python benchmarks/irregular_budget.py [--points 40] [--max 25] [--out benchmarks/results]
     python benchmarks/irregular_budget.py --study paper-fig5-gaps [--max 0]
     python benchmarks/irregular_budget.py --study nightly/irregular [--max 0]
+    python benchmarks/irregular_budget.py --random 1500 --seed 11 --max 0
 
 The three spectra of ``point_engine.py`` (γ_r 0.3–6) run with the default settings (or, with
-``--study``, every point of a shipped grid study with its own settings; ``--max 0``: re-run
-every irregular point, and the files are named ``irregular_budget_<study>``); up to
-``--max`` points that end ``irregular`` are run again with ``max_periods`` ten times the periods
-the first run used and a standard-error target so small that the statistics run to that budget.
-A reported standard error is honest if the longer run's Γ lies within 3 of them of the first
-run's Γ (the target: at least 90 % of the points). A longer run that ends ``linear`` or
-``periodic`` shows that the first run saw transient chaos: it counts as a miss, and the first
-run's ``reason`` says whether it was labelled as possibly transient.
+``--study``, every point of a shipped grid study with its own settings, or with ``--random N``
+N random cells over wide ranges, :func:`random_points`; ``--max 0``: re-run every irregular
+point; the files are then named ``irregular_budget_<study>`` or
+``irregular_budget_random<seed>``); up to ``--max`` points that end ``irregular`` are run again
+with ``max_periods`` ten times the periods the first run used and a standard-error target so
+small that the statistics run to that budget. A reported standard error is honest if the
+longer run's Γ lies within 3 of them of the first run's Γ (the target: at least 90 % of the
+points). A longer run that ends ``linear`` or ``periodic`` shows that the first run saw
+transient chaos: it counts as a miss, and the first run's ``reason`` says whether it was
+labelled as possibly transient.
 
 Writes ``irregular_budget.md`` and ``irregular_budget.csv``.
 """
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import sys
@@ -74,16 +78,46 @@ def study_points(name: str) -> tuple[list[tuple[str, float, CellParams]], Solver
     return pts, study.solver.settings()
 
 
+def random_points(n: int, seed: int) -> list[tuple[str, float, CellParams]]:
+    """n random cells (case: their parameters as JSON): θ 0.01–10, σ 0.003–1, γ_s 0.2–5,
+    ξ 0.001–0.3, g1 0.001–5 (log-uniform; g2 = g1, or for 30 % g1 times 0.3–3), γ_r 0.2–6,
+    1–10 modes, either coupling."""
+    rng = np.random.default_rng(seed)
+
+    def log_uniform(a: float, b: float) -> float:
+        return float(np.exp(rng.uniform(np.log(a), np.log(b))))
+
+    pts = []
+    for _ in range(n):
+        g1 = log_uniform(0.001, 5.0)
+        g2 = g1 * (log_uniform(0.3, 3.0) if rng.random() < 0.3 else 1.0)
+        kw = dict(theta=log_uniform(0.01, 10.0), sigma=log_uniform(0.003, 1.0),
+                  gamma_s=log_uniform(0.2, 5.0), xi=log_uniform(0.001, 0.3), g1=g1, g2=g2,
+                  gamma_r=log_uniform(0.2, 6.0), coupling=str(rng.choice(["paper", "full"])),
+                  modes=int(rng.integers(1, 11)))  # fmt: skip
+        pts.append((json.dumps(kw), kw["gamma_r"], CellParams(**kw)))
+    return pts
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=40, help="points per spectrum")
     ap.add_argument("--max", type=int, default=25, help="irregular points to re-run")
     ap.add_argument("--factor", type=int, default=10, help="budget multiple of the re-run")
     ap.add_argument("--study", help="a shipped grid study instead of the three spectra")
+    ap.add_argument("--random", type=int, default=0, help="N random cells instead (--seed)")
+    ap.add_argument("--seed", type=int, default=4, help="the random cells' seed")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = ap.parse_args(argv)
+    if args.random < 0 or (args.random and args.study):
+        ap.error(f"--random must be 0 (off) or more, and not with --study; got {args.random}")
     t0 = time.perf_counter()
-    points, default = study_points(args.study) if args.study else spectra_points(args.points)
+    if args.random:
+        points, default = random_points(args.random, args.seed), SolverSettings()
+    elif args.study:
+        points, default = study_points(args.study)
+    else:
+        points, default = spectra_points(args.points)
     warm_up(default.method)
     found = []
     for case, g, p in points:
@@ -114,7 +148,10 @@ def main(argv: list[str] | None = None) -> int:
     loose = sum(r["z"] is not None and r["z"] <= 3.0 for r in rows)
     frac = ok / n if n else math.nan
     loose_frac = loose / n if n else math.nan
-    if args.study:
+    if args.random:
+        command = f"--random {args.random} --seed {args.seed} --max {args.max}"
+        where = f"random cells (seed {args.seed})"
+    elif args.study:
         command = f"--study {args.study} --max {args.max}"
         where = f"points of `{args.study}`"
     else:
@@ -156,7 +193,9 @@ def main(argv: list[str] | None = None) -> int:
             + f" | {r['long_se'] if r['long_se'] is None else format(r['long_se'], '.3g')} | "
             f"{r['long_periods']} | " + ("–" if r["z"] is None else f"{r['z']:.2f}") + " |"
         )
-    name = "irregular_budget_" + args.study.replace("/", "-") if args.study else "irregular_budget"
+    name = "irregular_budget" + (f"_random{args.seed}" if args.random else "")
+    if args.study:
+        name += "_" + args.study.replace("/", "-")
     write_results(args.out, name, lines, rows)
     return 0
 

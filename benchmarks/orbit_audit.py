@@ -5,9 +5,9 @@
     python benchmarks/orbit_audit.py --random 300 --seed 4
 
 Every point of a shipped grid study (with ``--study``; ``nightly/NAME`` for one of the nightly
-suite), of N random cells over wide ranges (``--random N``, :func:`random_points`) or else of
-the three spectra of ``point_engine.py`` that its own settings (with ``--plain``: extrapolation off, plain
-iteration) report ``periodic`` is checked twice:
+suite), of N random cells over wide ranges (``--random N``, ``irregular_budget.random_points``)
+or else of the three spectra of ``point_engine.py`` that its own settings (with ``--plain``:
+extrapolation off, plain iteration) report ``periodic`` is checked twice:
 
 - against plain iteration (``extrapolate`` off) to ``periodicity_tol`` ``--tol`` with a budget
   of ``--budget`` periods: the same outcome and period, and |ΔΓ| (the target: within 1e-6 dB);
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import os
 import sys
@@ -45,7 +44,7 @@ import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
 # isort: split
 import numpy as np  # noqa: E402
 
-from benchmarks.irregular_budget import spectra_points, study_points  # noqa: E402
+from benchmarks.irregular_budget import random_points, spectra_points, study_points  # noqa: E402
 from benchmarks.point_engine import write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import PointResult, SolverSettings, simulate_point, warm_up  # noqa: E402
@@ -103,27 +102,6 @@ def audit(
             divisor_repeat=divisor_repeat(p, audited, r),
         ))  # fmt: skip
     return rows
-
-
-def random_points(n: int, seed: int) -> list[tuple[str, float, CellParams]]:
-    """n random cells (case: their parameters as JSON): θ 0.01–10, σ 0.003–1, γ_s 0.2–5,
-    ξ 0.001–0.3, g1 0.001–5 (log-uniform; g2 = g1, or for 30 % g1 times 0.3–3), γ_r 0.2–6,
-    1–10 modes, either coupling."""
-    rng = np.random.default_rng(seed)
-
-    def log_uniform(a: float, b: float) -> float:
-        return float(np.exp(rng.uniform(np.log(a), np.log(b))))
-
-    pts = []
-    for _ in range(n):
-        g1 = log_uniform(0.001, 5.0)
-        g2 = g1 * (log_uniform(0.3, 3.0) if rng.random() < 0.3 else 1.0)
-        kw = dict(theta=log_uniform(0.01, 10.0), sigma=log_uniform(0.003, 1.0),
-                  gamma_s=log_uniform(0.2, 5.0), xi=log_uniform(0.001, 0.3), g1=g1, g2=g2,
-                  gamma_r=log_uniform(0.2, 6.0), coupling=str(rng.choice(["paper", "full"])),
-                  modes=int(rng.integers(1, 11)))  # fmt: skip
-        pts.append((json.dumps(kw), kw["gamma_r"], CellParams(**kw)))
-    return pts
 
 
 def main(argv: list[str] | None = None) -> int:

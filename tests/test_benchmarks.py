@@ -136,6 +136,10 @@ def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
     assert {p.theta for _, _, p in night} == {0.2, 0.5}
     with pytest.raises(SystemExit, match="nightly/nope: the nightly suite has .*full-gaps"):
         mod.study_points("nightly/nope")
+    # random cells instead: not with a study
+    with pytest.raises(SystemExit) as exc:
+        mod.main(["--random", "5", "--study", "quick"])
+    assert exc.value.code == 2
 
 
 def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_period(
