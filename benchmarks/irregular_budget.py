@@ -99,6 +99,20 @@ def random_points(n: int, seed: int) -> list[tuple[str, float, CellParams]]:
     return pts
 
 
+def chosen_points(
+    ap: argparse.ArgumentParser, args: argparse.Namespace
+) -> tuple[list[tuple[str, float, CellParams]], SolverSettings]:
+    """The points ``--random``/``--seed``, ``--study`` or else ``--points`` name, and their
+    settings (``ap.error`` for ``--random`` below 0 or with ``--study``)."""
+    if args.random < 0 or (args.random and args.study):
+        ap.error(f"--random must be 0 (off) or more, and not with --study; got {args.random}")
+    if args.random:
+        return random_points(args.random, args.seed), SolverSettings()
+    if args.study:
+        return study_points(args.study)
+    return spectra_points(args.points)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=40, help="points per spectrum")
@@ -109,15 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=4, help="the random cells' seed")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = ap.parse_args(argv)
-    if args.random < 0 or (args.random and args.study):
-        ap.error(f"--random must be 0 (off) or more, and not with --study; got {args.random}")
+    points, default = chosen_points(ap, args)
     t0 = time.perf_counter()
-    if args.random:
-        points, default = random_points(args.random, args.seed), SolverSettings()
-    elif args.study:
-        points, default = study_points(args.study)
-    else:
-        points, default = spectra_points(args.points)
     warm_up(default.method)
     found = []
     for case, g, p in points:

@@ -44,7 +44,7 @@ import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
 # isort: split
 import numpy as np  # noqa: E402
 
-from benchmarks.irregular_budget import random_points, spectra_points, study_points  # noqa: E402
+from benchmarks.irregular_budget import chosen_points  # noqa: E402
 from benchmarks.point_engine import write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import PointResult, SolverSettings, simulate_point, warm_up  # noqa: E402
@@ -122,15 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--tol must be in (0, 1e-2), got {args.tol:g}")
     if args.budget < 2:
         ap.error(f"--budget must be at least 2, got {args.budget}")
-    if args.random < 0 or (args.random and args.study):
-        ap.error(f"--random must be 0 (off) or more, and not with --study; got {args.random}")
+    points, audited = chosen_points(ap, args)
     t0 = time.perf_counter()
-    if args.random:
-        points, audited = random_points(args.random, args.seed), SolverSettings()
-    elif args.study:
-        points, audited = study_points(args.study)
-    else:
-        points, audited = spectra_points(args.points)
     if args.plain:
         audited = dataclasses.replace(audited, extrapolate=False)
     reference = dataclasses.replace(audited, extrapolate=False, periodicity_tol=args.tol,

@@ -163,7 +163,8 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
             assert r["divisor_repeat"] == ""
     # an orbit reported with twice its period is caught: its integrated states do not repeat
     # after 2 periods but after 1 (a run with that history reports period 1: not reproduced)
-    p = mod.spectra_points(6)[0][2][2]  # A γ_r 2.58, period 1
+    points = _load("irregular_budget")
+    p = points.spectra_points(6)[0][2][2]  # A γ_r 2.58, period 1
     settings = mod.SolverSettings()
     r = mod.simulate_point(p, settings)
     assert r.response_period == 1 and mod.divisor_repeat(p, settings, r) is None
@@ -179,9 +180,9 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
             mod.main(argv)
         assert exc.value.code == 2 and said in capsys.readouterr().err
     # random cells: the same for the same seed, within the documented ranges
-    cells = mod.random_points(50, 4)
-    assert [c for c, _, _ in cells] == [c for c, _, _ in mod.random_points(50, 4)]
-    assert [c for c, _, _ in cells] != [c for c, _, _ in mod.random_points(50, 5)]
+    cells = points.random_points(50, 4)
+    assert [c for c, _, _ in cells] == [c for c, _, _ in points.random_points(50, 4)]
+    assert [c for c, _, _ in cells] != [c for c, _, _ in points.random_points(50, 5)]
     for _, g, p in cells:
         assert g == p.gamma_r and 0.2 <= g <= 6.0 and 0.01 <= p.theta <= 10.0
         assert 0.001 <= p.xi <= 0.3 and 1 <= p.modes <= 10 and p.coupling in ("paper", "full")
@@ -194,7 +195,7 @@ def test_every_orbit_of_a_figure_5_line_has_the_tight_references_period() -> Non
     # solver version 16's tight reference (plain iteration to 1e-12) reported a multiple of the
     # period at 8 of them (γ_r 1, 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
     mod = _load("orbit_audit")
-    points, settings = mod.study_points("paper-fig5-gaps")
+    points, settings = _load("irregular_budget").study_points("paper-fig5-gaps")
     line = [(c, g, p) for c, g, p in points if p.theta == 0.5 and p.g1 == 0.1]
     assert len(line) == 291
     reference = dataclasses.replace(settings, extrapolate=False, periodicity_tol=1e-12,
