@@ -393,6 +393,15 @@ def _shrinking_p(history: np.ndarray, n: int, max_period: int) -> int:
 
 
 @njit(cache=True, nogil=True)
+def _size(x: np.ndarray) -> float:
+    """max |x|, at least 1e-300: the scale differences of states are relative to."""
+    m = 1e-300
+    for i in range(x.shape[0]):
+        m = max(m, abs(x[i]))
+    return m
+
+
+@njit(cache=True, nogil=True)
 def _creeping_p(history: np.ndarray, n: int, max_period: int) -> int:
     """The smallest p whose p-spaced differences of the newest-last samples (the last ``n`` of
     ``history`` valid) are all within CREEP_NEAR of the state and whose largest in each of
@@ -401,9 +410,7 @@ def _creeping_p(history: np.ndarray, n: int, max_period: int) -> int:
     Chaos keeps its differences near the state's size; a quasi-periodic response keeps their
     stretches' largest level."""
     last = history.shape[0] - 1
-    scale = 1e-300
-    for i in range(history.shape[1]):
-        scale = max(scale, abs(history[last, i]))
+    scale = _size(history[last])
     for p in range(1, max_period + 1):
         width = (n - p) // CREEP_BLOCKS  # differences per stretch
         if width < p:
@@ -411,9 +418,7 @@ def _creeping_p(history: np.ndarray, n: int, max_period: int) -> int:
         prev = first = np.inf
         creeps = True
         for b in range(CREEP_BLOCKS - 1, -1, -1):  # the oldest stretch first
-            top = 0.0
-            for j in range(b * width, (b + 1) * width):
-                top = max(top, _max_diff(history[last - j], history[last - j - p]))
+            top = _envelope(history, last - b * width, p, width)
             if top > CREEP_NEAR * scale or top >= prev:
                 creeps = False
                 break
@@ -451,9 +456,7 @@ def _divisors_steady(history: np.ndarray, n: int, p: int, near: float, tol: floa
     least 2p: about 300 when they are all kept, where a slow mode's differences shrink by more
     wherever its multiplier is below 0.9997)."""
     last = history.shape[0] - 1
-    scale = 1e-300
-    for i in range(history.shape[1]):
-        scale = max(scale, abs(history[last, i]))
+    scale = _size(history[last])
     for q in range(1, p):
         if p % q:
             continue
@@ -1423,7 +1426,8 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     elif (history_periods and run is not None and eng is not None and _overflowed(run)
           and eng.nhistory > history_periods):  # fmt: skip
         # early stop off: the main run recorded its last periods, but with more events than
-        # budgeted the oldest rows dropped out. Run them again from their first period end.
+        # budgeted the oldest rows dropped out. Run them again from their first period end
+        # (kept for up to HISTORY - 1 periods; a longer history of such an orbit stays cut).
         _record_history(run, eng.history[-1 - history_periods].copy(), history_periods)
     if history_periods and run is not None:
         res.history = run.history(p, kappa)
