@@ -133,6 +133,9 @@ LINEAR_FIT = 0.25
 # brings deviations less than this much closer over MAX_RRE returns (a multiplier near 1),
 # pending orbits are also fitted over all the returns the buffer holds (_fit_returns)
 SLOW_SHRINK = 0.5
+# eigenvector matrices of the map worse conditioned than this: the approach is measured without
+# them (_approach_seen)
+EIG_COND = 1e8
 TAIL_HORIZON = 200  # periods ahead the linear tail proof may search
 # Periods (times the orbit's period) without periodicity signals after an unstable orbit was
 # reached by the samples: they repeat near it for a while as the trajectory leaves
@@ -504,7 +507,13 @@ def _newton_step(exact: ExactMonodromy | None, res: np.ndarray, r: float,
     return step
 
 
-def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True) -> bool:
+def _follows(
+    M: np.ndarray,
+    X: np.ndarray,
+    x0: np.ndarray,
+    chained: bool = True,
+    frame: tuple[float, tuple | None] | None = None,
+) -> bool:
     """Whether the samples ``X`` (one map step apart, oldest first) follow the orbit's
     linearized map towards its state ``x0`` (``M`` the map's matrix there): the deviations
     ``D = X − x0`` must be what the linear map makes of the first one, ``D_j ≈ M^j D_0``
@@ -518,7 +527,8 @@ def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True)
     orbits), less as it gets closer. Chained, the newest sample must also have come as much
     closer as the map brings it, to ``LINEAR_FIT`` of that approach (solver version 16): near a
     multiplier of modulus 1 the map hardly moves a deviation closer, and a fit of positions
-    alone is passed by samples on a nearby orbit."""
+    alone is passed by samples on a nearby orbit. ``frame``: :func:`eigen_frame` of M, where
+    the caller keeps it (a pending orbit's matrix is fitted again at every batch)."""
     D = X - x0
     pred = D[0]
     for j in range(1, len(D)):
@@ -531,10 +541,56 @@ def _follows(M: np.ndarray, X: np.ndarray, x0: np.ndarray, chained: bool = True)
         # orbit close around this one fit its position (nightly paper-params, θ 0.5, σ 0.03,
         # γ_s 0.8, ξ 0.08, γ_r 1: a period-1 orbit of multiplier -0.9995 fitted to 13 % by
         # samples approaching the period-2 orbit around it; the map brings them 0.6 % closer
-        # over the 8 samples, and they came 12 % closer).
-        closer = np.max(np.abs(D[0])) - np.max(np.abs(pred))
-        return bool(np.max(np.abs(D[-1] - pred)) <= LINEAR_FIT * closer)
+        # over the 8 samples, and they came 12 % closer). The approach is measured at the
+        # newest sample's phase (solver version 19): the max-norm of a turning deviation swings
+        # with the turn (fourfold for a multiplier pair turning a seventh of a turn a period,
+        # at a random cell at θ 9.15, 9 modes, γ_r 0.818), and compared at two phases it
+        # measured the turn.
+        rho, turn = eigen_frame(M) if frame is None else frame
+        return _approach_seen(rho, turn, D[0], pred, D[-1] - pred, len(D) - 1)
     return len(D) >= 2
+
+
+def eigen_frame(M: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+    """A map's spectral radius (inf where its eigenvalues are not finite) and what turns a
+    deviation as the map does without shrinking it: the eigenvector matrix V, its inverse and
+    the multipliers' phases ``λ/|λ|`` (None where V's condition is above ``EIG_COND``: M nearly
+    defective)."""
+    w, V = np.linalg.eig(M)
+    if not np.all(np.isfinite(w)):
+        return math.inf, None
+    a = np.abs(w)
+    rho = float(np.max(a))
+    try:
+        W = np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        return rho, None
+    # the 1-norm condition number: exact, and cheaper than the 2-norm's SVD
+    if not np.linalg.norm(V, 1) * np.linalg.norm(W, 1) < EIG_COND:
+        return rho, None
+    return rho, (V, W, np.where(a > 0.0, w / np.where(a > 0.0, a, 1.0), 1.0))
+
+
+def _approach_seen(rho: float, turn: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+                   first: np.ndarray, pred: np.ndarray, miss: np.ndarray,
+                   steps: int) -> bool:  # fmt: skip
+    """Whether a sample met the prediction ``pred = M^steps·first`` of a map that contracts
+    (spectral radius ``rho``) to ``LINEAR_FIT`` of the approach the map predicts (``miss``: the
+    sample minus ``pred``). The approach is measured at the prediction's phase: how far the
+    prediction is from where the map would have turned ``first`` without shrinking it (``turn``
+    from :func:`eigen_frame`; each mode turned by its multiplier's phase), so the sample must be
+    four times nearer the contracted prediction than the neutral one. Without ``turn`` (M
+    nearly defective) it is what the slowest contraction takes off the prediction,
+    ``(ρ^-steps − 1)·|pred|`` (stricter: the faster modes' share left out)."""
+    if not rho < 1.0:
+        return False  # not a contraction: no approach to see
+    if turn is not None:
+        V, W, u = turn
+        neutral = (V @ (u**steps * (W @ first))).real
+        closer = float(np.max(np.abs(neutral - pred)))
+    else:
+        closer = (rho**-steps - 1.0) * float(np.max(np.abs(pred)))
+    return bool(np.max(np.abs(miss)) <= LINEAR_FIT * closer)
 
 
 def _unstable(o: _Orbit) -> bool:
@@ -546,6 +602,11 @@ def _unstable(o: _Orbit) -> bool:
 def _impacts(rows: np.ndarray) -> float:
     """Impacts on both stops over the periods of ``rows`` (whole numbers: sums are exact)."""
     return float(rows[:, ms.M_IMP1].sum() + rows[:, ms.M_IMP2].sum())
+
+
+def _spread(X: np.ndarray, x0: np.ndarray) -> float:
+    """The largest distance (max-norm) of the states ``X`` from ``x0``."""
+    return float(np.max(np.abs(X - x0)))
 
 
 @njit(cache=True, nogil=True)
@@ -650,6 +711,13 @@ class _Pending:
     # the q-period map's matrix at the orbit's start where the multiplier came from one: the
     # orbit is also reached once the trajectory's returns follow it
     matrix: np.ndarray | None = None
+    frame: tuple[float, tuple | None] | None = None  # eigen_frame(matrix), once needed
+
+    def eigen(self) -> tuple[float, tuple | None]:
+        """The matrix's :func:`eigen_frame`, computed once."""
+        if self.frame is None:
+            self.frame = eigen_frame(self.matrix)
+        return self.frame
 
 
 class _Engine:
@@ -994,16 +1062,45 @@ class _Engine:
         X = self._return_states(o, k)
         return [] if X is None else [_max_diff(x, o.x0) for x in X[::-1]]
 
-    def _return_states(self, o: _Orbit, k: int) -> np.ndarray | None:
-        """The trajectory's states at its last k returns to orbit ``o``, oldest first: the one
-        of its last q samples nearest ``o``'s start, and the samples q, 2q, … before it (None
-        before it has k·q samples)."""
+    def _return_index(self, o: _Orbit, k: int) -> list[int] | None:
+        """Where in ``recent`` the trajectory's last k returns to orbit ``o`` are, oldest
+        first: the one of its last q samples nearest ``o``'s start, and the samples q, 2q, …
+        before it (None before it has k·q samples)."""
         q = o.p
         if self.nrecent < k * q:
             return None
         last = [_max_diff(x, o.x0) for x in self.recent[RECENT - q :]]
         j = RECENT - q + int(np.argmin(last))
-        return self.recent[[j - i * q for i in range(k - 1, -1, -1)]]
+        return [j - i * q for i in range(k - 1, -1, -1)]
+
+    def _return_states(self, o: _Orbit, k: int) -> np.ndarray | None:
+        """The trajectory's states at its last k returns to orbit ``o``, oldest first (None
+        before it has k·q samples)."""
+        idx = self._return_index(o, k)
+        return None if idx is None else self.recent[idx]
+
+    def _on_branch_within(self, o: _Orbit, radius: float) -> bool:
+        """Whether every kept return of the trajectory within ``radius`` of orbit ``o`` came
+        over the orbit's branch of the map (its impacts over the q periods before it). A fit of
+        the orbit's linearized map (:func:`_follows`) shows an approach only inside a ball where
+        that map holds; a return as close with other impacts shows a branch change there (a
+        grazing contact), which the fit's samples may have missed by chance (solver version 19:
+        a random cell at θ 9.15, 9 modes, full coupling, γ_r 0.818, whose period-1 orbit of
+        7 impacts a period and multiplier 0.9967 is circled by the period-7 orbit the
+        trajectory settles on, an 8th, grazing impact every few periods; 8 returns in a row
+        without one fitted the map to 0.3 %, and version 18 reported the orbit, 7e-4 dB off)."""
+        q = o.p
+        idx = self._return_index(o, self.nrecent // q)
+        if idx is None:
+            return True
+        first = RECENT - self.nrecent  # the oldest kept sample
+        at = np.array([i for i in idx if i - q + 1 >= first], dtype=np.int64)
+        if at.size == 0:
+            return True
+        near = np.max(np.abs(self.recent[at] - o.x0), axis=1) <= radius
+        cum = np.concatenate(([0.0], np.cumsum(self.recent_imp)))
+        imp = cum[at + 1] - cum[at + 1 - q]  # impacts over the q periods before each return
+        return bool(np.all(imp[near] == _impacts(o.rows[:q])))
 
     def _reached(self, slack: float) -> _Orbit | None:
         """A pending orbit the trajectory has reached: it is on the orbit to
@@ -1021,7 +1118,9 @@ class _Engine:
             if pend.matrix is not None:
                 for k in self._fit_returns(o.p, pend.multiplier):
                     X = self._return_states(o, k)
-                    if X is not None and _follows(pend.matrix, X, o.x0):
+                    if X is not None and _follows(pend.matrix, X, o.x0, frame=pend.eigen()) and (
+                        self._on_branch_within(o, _spread(X, o.x0))
+                    ):  # fmt: skip
                         return replace(o, multiplier=pend.multiplier)
         return None
 
@@ -1135,9 +1234,10 @@ class _Engine:
                         # never reaches it, and a slowly contracting sequence cannot tell.
                         # (M is None only at zero gaps, where every state is attracted.)
                         attracting = lam is not None and lam < 1.0
-                        if attracting and (
-                            M is None or _follows(np.linalg.matrix_power(M, p // q), X, xs)
-                        ):
+                        if attracting and (M is None or (
+                            _follows(np.linalg.matrix_power(M, p // q), X, xs)
+                            and self._on_branch_within(orbit, _spread(X, xs))
+                        )):  # fmt: skip
                             return orbit
                         # unstable, or its attraction not proven: not checked again
                         self.tried.append(samples[:q].copy())
