@@ -527,6 +527,27 @@ def test_steadily_shrinking_differences_show_a_long_orbit_being_approached():
     assert engine._shrinking_p(circled, n, ms.MAX_PERIOD) == 0
 
 
+def test_an_unsettled_reason_names_the_period_of_the_orbit_approached():
+    rng = np.random.default_rng(5)
+    n, nx = engine.HISTORY, 6
+    k = np.arange(n)
+    fixed, slow, other = rng.normal(size=nx), rng.normal(size=nx), rng.normal(size=nx)
+    # a period-1 state approached along a multiplier of -0.998: the 2-spaced differences are
+    # 0.2 % of the 1-spaced ones, so the tests see them first, but both shrink alike (a random
+    # cell, seed 11's cell 309, whose unsettled reason named a period-2 orbit; a ten times
+    # longer run reaches a period-1 orbit)
+    X = fixed + np.outer((-0.998) ** k * 2e-2, slow)
+    assert engine._creeping_p(X, n, 35) == 2  # the 1-spaced ones beyond CREEP_NEAR
+    assert engine._own_period(X, n, 2) == 1
+    assert engine._own_period(X, n, 6) == 1
+    # a period-2 orbit approached at 0.998 a period: its 1-spaced differences keep its size
+    Y = fixed + np.outer((-1.0) ** k * 0.1, other) + np.outer(0.998**k * 2e-2, slow)
+    assert engine._own_period(Y, n, 2) == 2
+    assert engine._own_period(Y, n, 4) == 2
+    # too few samples for stretches of a return: the period the tests found
+    assert engine._own_period(X, 20, 6) == 6
+
+
 def test_differences_that_creep_down_show_an_orbit_approached_at_a_multiplier_near_1():
     rng = np.random.default_rng(7)
     n, nx = engine.HISTORY, 6

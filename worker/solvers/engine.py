@@ -476,6 +476,35 @@ def _divisors_steady(history: np.ndarray, n: int, p: int, near: float, tol: floa
     return True
 
 
+def _own_period(history: np.ndarray, n: int, p: int) -> int:
+    """The period of the orbit whose approach the p-spaced differences of the newest-last
+    samples (the last ``n`` of ``history`` valid) show: the smallest divisor q of p whose
+    q-spaced differences shrank about as much over the samples (the largest in the newest of
+    CREEP_BLOCKS stretches against the oldest's, at most halfway from the p-spaced ones'
+    fraction to 1), else p. A period-1 orbit approached along a multiplier λ near −1 makes the
+    2-spaced differences (1 − λ²)/2 of the 1-spaced ones, so the tests see them first, though
+    both shrink alike (a random cell's unsettled reason named a period-2 orbit that a longer run
+    shows is period 1); the q-spaced differences of a period-p orbit keep the orbit's own size.
+    Only the name in a reason depends on it."""
+    width = (n - p) // CREEP_BLOCKS
+    if p < 2 or width < p:
+        return p
+    last = history.shape[0] - 1
+    old = last - (CREEP_BLOCKS - 1) * width
+
+    def fraction(k: int) -> float:
+        before = _envelope(history, old, k, width)
+        return _envelope(history, last, k, width) / before if before > 0.0 else math.inf
+
+    fp = fraction(p)
+    if not fp < 1.0:
+        return p
+    for q in range(1, p):
+        if p % q == 0 and fraction(q) <= 0.5 * (1.0 + fp):
+            return q
+    return p
+
+
 def _exact_radius(exact: ExactMonodromy | None) -> float | None:
     """The spectral radius of a method's exact monodromy matrix (None without one, or where
     its eigenvalues are not finite)."""
@@ -1373,6 +1402,7 @@ class _Engine:
         if trend > MAX_TREND:
             return what + f": Γ still drifts (trend t = {trend:.3g}): a slow transient"
         p = self._converging()
+        p = _own_period(self.history, self.nhistory, p) if p else 0
         u = self.passed_unstable
         if p and u is not None and p % u.p == 0:
             return what + (f" while the response was near an unstable period-{u.p} orbit "
