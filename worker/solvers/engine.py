@@ -1456,6 +1456,15 @@ def _overflowed(run: KernelRun) -> bool:
     return int(run.kst[ms.K_HIST]) > run.hist.shape[0]
 
 
+def _state_after(run: KernelRun, x0: np.ndarray, periods: int) -> np.ndarray:
+    """The state ``periods`` periods after ``x0`` (period ends), run again without history."""
+    run.reset(x0)
+    run.keep_history(0)
+    if periods > 0:
+        run.advance(periods, False, 0, np.zeros((periods, ms.ROW)), np.zeros((periods, run.nx)))
+    return run.x.copy()
+
+
 def _record_history(run: KernelRun, start: np.ndarray, periods: int) -> None:
     """Record the history of ``periods`` periods from ``start``, whole: the buffer is sized
     for the steps and up to ``history_rows_per_period`` events a period, and a chattering
@@ -1549,18 +1558,27 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     # history, when asked for, starts there too)
     if history_start is not None and not res.failed:
         res.final_state = np.array(history_start, dtype=float)
+    offset = 0.0  # where the history's τ starts: 0 but where the main run is re-run
     if history_periods and outcome != "failed" and settings.early_stop:
         if run is None:
             run = make_run()
         _record_history(run, history_start, history_periods)
-    elif (history_periods and run is not None and eng is not None and _overflowed(run)
-          and eng.nhistory > history_periods):  # fmt: skip
+    elif history_periods and run is not None and eng is not None and _overflowed(run):
         # early stop off: the main run recorded its last periods, but with more events than
-        # budgeted the oldest rows dropped out. Run them again from their first period end
-        # (kept for up to HISTORY - 1 periods; a longer history of such an orbit stays cut).
-        _record_history(run, eng.history[-1 - history_periods].copy(), history_periods)
+        # budgeted the oldest rows dropped out. Run them again from their first period end:
+        # a kept sample, or for a history longer than the HISTORY - 1 samples kept, the state
+        # the trajectory had there, reached again from the start.
+        back = min(history_periods, eng.period)
+        if eng.nhistory > back:
+            start = eng.history[-1 - back].copy()
+        else:
+            start = _state_after(run, x0, eng.period - back)
+        _record_history(run, start, back)
+        # on the main run's clock, as a history that did not overflow is
+        offset = (eng.period - back) * T
     if history_periods and run is not None:
         res.history = run.history(p, kappa)
+        res.history["tau"] = res.history["tau"] + offset
     _with_reference(res, tail)
     res.wall_s = time.perf_counter() - t0
     return res
