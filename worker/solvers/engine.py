@@ -1558,7 +1558,7 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     # history, when asked for, starts there too)
     if history_start is not None and not res.failed:
         res.final_state = np.array(history_start, dtype=float)
-    offset = 0.0  # where the history's τ starts: 0 but where the main run is re-run
+    offset = 0.0  # a history re-run from a later period end: its start on the main run's clock
     if history_periods and outcome != "failed" and settings.early_stop:
         if run is None:
             run = make_run()
@@ -1567,15 +1567,17 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
         # early stop off: the main run recorded its last periods, but with more events than
         # budgeted the oldest rows dropped out. Run them again from their first period end:
         # a kept sample, or for a history longer than the HISTORY - 1 samples kept, the state
-        # the trajectory had there, reached again from the start.
+        # the trajectory had there, reached again from the start (not for a failed point: it
+        # may have run out of its limits, and its history stays cut).
         back = min(history_periods, eng.period)
+        start = None
         if eng.nhistory > back:
             start = eng.history[-1 - back].copy()
-        else:
+        elif outcome != "failed":
             start = _state_after(run, x0, eng.period - back)
-        _record_history(run, start, back)
-        # on the main run's clock, as a history that did not overflow is
-        offset = (eng.period - back) * T
+        if start is not None:
+            _record_history(run, start, back)
+            offset = (eng.period - back) * T
     if history_periods and run is not None:
         res.history = run.history(p, kappa)
         res.history["tau"] = res.history["tau"] + offset
