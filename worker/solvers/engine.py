@@ -541,7 +541,7 @@ def _follows(
     X: np.ndarray,
     x0: np.ndarray,
     chained: bool = True,
-    frame: tuple[float, tuple | None] | None = None,
+    frame: Callable[[], tuple[float, tuple | None]] | None = None,
 ) -> bool:
     """Whether the samples ``X`` (one map step apart, oldest first) follow the orbit's
     linearized map towards its state ``x0`` (``M`` the map's matrix there): the deviations
@@ -556,8 +556,9 @@ def _follows(
     orbits), less as it gets closer. Chained, the newest sample must also have come as much
     closer as the map brings it, to ``LINEAR_FIT`` of that approach (solver version 16): near a
     multiplier of modulus 1 the map hardly moves a deviation closer, and a fit of positions
-    alone is passed by samples on a nearby orbit. ``frame``: :func:`eigen_frame` of M, where
-    the caller keeps it (a pending orbit's matrix is fitted again at every batch)."""
+    alone is passed by samples on a nearby orbit. ``frame``: gives :func:`eigen_frame` of M
+    where the caller keeps it (a pending orbit's matrix is fitted again at every batch);
+    called only where the samples fit the map step by step."""
     D = X - x0
     pred = D[0]
     for j in range(1, len(D)):
@@ -575,7 +576,7 @@ def _follows(
         # with the turn (fourfold for a multiplier pair turning a seventh of a turn a period,
         # at a random cell at θ 9.15, 9 modes, γ_r 0.818), and compared at two phases it
         # measured the turn.
-        rho, turn = eigen_frame(M) if frame is None else frame
+        rho, turn = eigen_frame(M) if frame is None else frame()
         return _approach_seen(rho, turn, D[0], pred, D[-1] - pred, len(D) - 1)
     return len(D) >= 2
 
@@ -747,6 +748,16 @@ class _Pending:
         if self.frame is None:
             self.frame = eigen_frame(self.matrix)
         return self.frame
+
+    def eigen_power(self, k: int) -> tuple[float, tuple | None]:
+        """The :func:`eigen_frame` of the matrix's k-th power (the p-period map of a q-periodic
+        orbit, k = p/q): the same eigenvectors, the multipliers' moduli and phases to the k-th
+        power."""
+        rho, turn = self.eigen()
+        if turn is None:
+            return rho**k, None
+        V, W, u = turn
+        return rho**k, (V, W, u**k)
 
 
 class _Engine:
@@ -1147,7 +1158,7 @@ class _Engine:
             if pend.matrix is not None:
                 for k in self._fit_returns(o.p, pend.multiplier):
                     X = self._return_states(o, k)
-                    if X is not None and _follows(pend.matrix, X, o.x0, frame=pend.eigen()) and (
+                    if X is not None and _follows(pend.matrix, X, o.x0, frame=pend.eigen) and (
                         self._on_branch_within(o, _spread(X, o.x0))
                     ):  # fmt: skip
                         return replace(o, multiplier=pend.multiplier)
@@ -1263,17 +1274,20 @@ class _Engine:
                         # never reaches it, and a slowly contracting sequence cannot tell.
                         # (M is None only at zero gaps, where every state is attracted.)
                         attracting = lam is not None and lam < 1.0
+                        # the q-period map's eigenvectors, computed at most once: for the
+                        # fit of the p-period map here and, if it waits, the pending orbit's
+                        pend = _Pending(orbit, 0.0, lam, None if M is None else M.copy())
                         if attracting and (M is None or (
-                            _follows(np.linalg.matrix_power(M, p // q), X, xs)
+                            _follows(np.linalg.matrix_power(M, p // q), X, xs,
+                                     frame=functools.partial(pend.eigen_power, p // q))
                             and self._on_branch_within(orbit, _spread(X, xs))
                         )):  # fmt: skip
                             return orbit
                         # unstable, or its attraction not proven: not checked again
                         self.tried.append(samples[:q].copy())
                         if attracting and M is not None:
-                            self.pending.append(
-                                _Pending(orbit, self._distance(orbit), lam, M.copy())
-                            )  # fmt: skip
+                            pend.found_at = self._distance(orbit)
+                            self.pending.append(pend)
                         elif lam is None:
                             radius = _exact_radius(J)
                             self.pending.append(_Pending(
@@ -1456,13 +1470,13 @@ def _overflowed(run: KernelRun) -> bool:
     return int(run.kst[ms.K_HIST]) > run.hist.shape[0]
 
 
-def _state_after(run: KernelRun, x0: np.ndarray, periods: int) -> np.ndarray:
-    """The state ``periods`` periods after ``x0`` (period ends), run again without history."""
-    run.reset(x0)
-    run.keep_history(0)
+def _rerun(run: KernelRun, start: np.ndarray, periods: int, cap: int) -> None:
+    """Run ``periods`` periods from ``start`` again (unmeasured), keeping the last ``cap``
+    history rows (0: none)."""
+    run.reset(start)
+    run.keep_history(cap)
     if periods > 0:
         run.advance(periods, False, 0, np.zeros((periods, ms.ROW)), np.zeros((periods, run.nx)))
-    return run.x.copy()
 
 
 def _record_history(run: KernelRun, start: np.ndarray, periods: int) -> None:
@@ -1471,11 +1485,7 @@ def _record_history(run: KernelRun, start: np.ndarray, periods: int) -> None:
     orbit has more, so an overflow is run again with room for every row it wrote."""
     cap = periods * run.history_rows_per_period()
     while True:
-        run.reset(start)
-        run.keep_history(cap)
-        rows = np.zeros((periods, ms.ROW))
-        samples = np.zeros((periods, run.nx))
-        run.advance(periods, False, 0, rows, samples)
+        _rerun(run, start, periods, cap)
         if not _overflowed(run):
             return
         cap = int(run.kst[ms.K_HIST])
@@ -1574,7 +1584,8 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
         if eng.nhistory > back:
             start = eng.history[-1 - back].copy()
         elif outcome != "failed":
-            start = _state_after(run, x0, eng.period - back)
+            _rerun(run, x0, eng.period - back, 0)
+            start = run.x.copy()
         if start is not None:
             _record_history(run, start, back)
             offset = (eng.period - back) * T
