@@ -749,46 +749,54 @@ def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
     assert 0.0 < r.floquet_multiplier < 1.0
 
 
-def test_an_orbit_where_the_map_jumps_is_reported_once_the_trajectory_reaches_it():
+def test_an_orbit_that_starts_stuck_on_a_stop_is_proven_by_its_exact_matrix():
     # θ 1, σ 0.1, gap 0.1, γ_r 5.312 (work-precision spectrum C): the orbit starts with the
-    # tip stuck on a stop, and the engine's differences of the period map there grow like
-    # 1/step (1.4e4 at 1e-7 of the state, 1.4e3 at 1e-6: perturbations off the stop, where the
-    # map is one-sided), so the orbit's attraction is not proven. Solver version 8 reported it
-    # as soon as it was extrapolated (period 100, the trajectory still 1e-3 away); now it waits
-    # until the trajectory has been a hundred times closer at three returns in a row, and
-    # reports the extrapolated start, with the exact matrix's multiplier (at the orbit's first
-    # release, solver version 13; none before): central differences along the stop agree.
+    # tip stuck on a stop, where the engine's differences of the period map grow like 1/step
+    # (perturbations off the stop, where the map is one-sided). Solver version 8 reported it as
+    # soon as it was extrapolated, unproven; versions 9-19 waited until the trajectory was a
+    # hundred times closer: their runs from a state held on a stop let the tip fly through
+    # the stop for a sub-grid interval (``roots.skip_start``), so the confirming runs were not
+    # the trajectory's. Since version 20 they are, the exact matrix (at the orbit's first
+    # release) proves the attraction, and the trajectory is seen to follow its linearized map.
     p = CellParams(theta=1.0, sigma=0.1, coupling="paper", gamma_s=1.0, gamma_r=5.311864,
                    xi=0.05, g1=0.1, g2=0.1)  # fmt: skip
     r = simulate_point(p)
     plain = simulate_point(p, SolverSettings(extrapolate=False))
     assert r.outcome == plain.outcome == "periodic" and r.response_period == 1
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
+    assert r.steady_period < plain.steady_period
     x = np.asarray(r.final_state)
     # (two periods: a budget of one is refused; the 2-period map's radius is its square)
     two = monodromy_radius(p, x, 2, 1e-7, True)
     assert r.floquet_multiplier**2 == pytest.approx(two, rel=1e-6)
-    # the trajectory itself, run as far as the engine ran it, ends near the reported orbit
-    x = np.asarray(r.final_state)
-    run = simulate_point(p, SolverSettings(early_stop=False, max_periods=r.steady_period,
-                                           window=1))  # fmt: skip
-    assert np.max(np.abs(np.asarray(run.final_state) - x)) <= 1e-4 * np.max(np.abs(x))
+    # the trajectory itself approaches the reported orbit as its multiplier says
+    n = r.steady_period
+    dist = []
+    for m in (n, n + 100):
+        run = simulate_point(p, SolverSettings(early_stop=False, max_periods=m, window=1))
+        dist.append(np.max(np.abs(np.asarray(run.final_state) - x)))
+    assert dist[1] / dist[0] == pytest.approx(r.floquet_multiplier**100, rel=0.3)
 
 
-def test_an_orbit_not_proven_to_attract_is_not_reported_before_the_trajectory_reaches_it():
-    # Figure 5's cell at θ 0.5, gap 1.0, γ_r 1.68: a period-3 orbit, extrapolated at period 64,
-    # where a perturbed run has other impacts (no Jacobian); the trajectory, then 5e-5 away, is
-    # on it by period ~100. Solver version 8 reported it at period 64.
+def test_an_orbit_that_starts_on_a_stop_is_confirmed_from_there():
+    # Figure 5's cell at θ 0.5, gap 1.0, γ_r 1.68: a period-3 orbit whose samples are taken
+    # with the tip on a stop, extrapolated at period 64 with the trajectory 5e-5 away. Version
+    # 8 reported it there unproven; versions 9-19 had a perturbed run with other impacts
+    # there (the run from a state on the stop let the tip through it: no exact matrix) and
+    # waited. Since version 20 the confirming run has the exact matrix, whose multiplier
+    # proves the attraction, and plain iteration to 1e-12 reaches the same orbit.
     p = cell(gamma_r=1.68, theta=0.5, g1=1.0, g2=1.0)
-    short = simulate_point(p, SolverSettings(max_periods=80))
-    assert short.outcome == "unsettled"
-    assert "before the trajectory reached the period-3 orbit" in short.reason
-    assert "not proven" in short.reason
     r = simulate_point(p)
-    plain = simulate_point(p, SolverSettings(extrapolate=False))
-    assert r.outcome == plain.outcome == "periodic" and r.response_period == 3
-    assert r.steady_period > 80
+    assert r.outcome == "periodic" and r.response_period == 3
+    assert 0.0 < r.floquet_multiplier < 1.0
+    plain = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=20_000))  # fmt: skip
+    assert plain.outcome == "periodic" and plain.response_period == 3
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
+    x = np.asarray(r.final_state)
+    run = simulate_point(p, SolverSettings(early_stop=False, max_periods=plain.steady_period,
+                                           window=1))  # fmt: skip
+    assert np.max(np.abs(np.asarray(run.final_state) - x)) <= 1e-9 * np.max(np.abs(x))
 
 
 def test_an_orbit_confirmed_beside_a_chaotic_trajectory_is_not_reported():

@@ -394,7 +394,7 @@ def stick_or_leave(y, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g2, h,
             else:
                 _modal(Vi, kk, ye, nk[kk], nzm - 1, a)
                 _coef(RV, kk, R_MU, a, nk[kk], sgn, cw)
-                ts = rt.skip_start(cw, lam[kk], nk[kk], 0.0, h)
+                ts = rt.skip_start(cw, lam[kk], nk[kk], 0.0, h, False)
                 if ts >= 0.0:
                     skip_on = True
                     ok = True
@@ -410,7 +410,7 @@ def stick_or_leave(y, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g2, h,
             x2[nx + 1] = ye[nzm - 3]
             _modal(Vi, 0, x2, nk[0], nzm, a)
             _coef(RV, 0, R_W, a, nk[0], -1.0 if k == 1 else 1.0, cw)
-            ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h)
+            ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h, True)
             if ts >= 0.0:
                 for i in range(nzm):
                     y[i] = x2[i]
@@ -435,7 +435,7 @@ def release(y, k, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, x, a, cw):
     y[nx + 1] = osc_s
     _modal(Vi, 0, y, nk[0], nzm, a)
     _coef(RV, 0, R_W, a, nk[0], -1.0 if k == 1 else 1.0, cw)
-    ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h)
+    ts = rt.skip_start(cw, lam[0], nk[0], g1 if k == 1 else g2, h, True)
     if ts < 0.0:
         return k, False, 0, 0.0
     return 0, True, k, ts
@@ -837,7 +837,7 @@ def start_state(y, kst, R, RV, Vi, lam, nk, bilateral, N, g1, g2, h, a, cw):
     if stop:  # leaving a stop at τ = 0: search it once the gap has opened
         _modal(Vi, 0, y, nk[0], nzm, a)
         _coef(RV, 0, R_W, a, nk[0], -1.0 if stop == 1 else 1.0, cw)
-        ts = rt.skip_start(cw, lam[0], nk[0], g1 if stop == 1 else g2, h)
+        ts = rt.skip_start(cw, lam[0], nk[0], g1 if stop == 1 else g2, h, True)
         if ts < 0.0:
             kst[K_PENDING] = stop
         else:

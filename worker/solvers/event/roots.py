@@ -601,7 +601,7 @@ def clear_whole(c, lam, E, nz, off, ln):
 
 
 @njit(cache=True, nogil=True)
-def skip_start(c, lam, nz, off, h):
+def skip_start(c, lam, nz, off, h, gap):
     """A t in (0, h] from which the search for f's next root may start after f left zero (a
     release, a departure from a stop), or -1.
 
@@ -612,7 +612,11 @@ def skip_start(c, lam, nz, off, h):
     is clearly above the round-off level, ta, to a tb fixed by B, so f has no root in
     [ta, tb] and the search starts at tb (well clear of zero: a search starting near the
     round-off level cost ~10 evaluations a release). Where that does not hold, the smaller of
-    ta and an eightfold sequence from h·8⁻¹³ at which f is clearly positive."""
+    ta and an eightfold sequence from h·8⁻¹³ at which f is clearly positive. Where f is a
+    ``gap``, only once it is proven not to dip below -1e-9·scale before that
+    (:func:`_above_until`), else -1: the gap closes first, a contact, not a departure. (A
+    contact force may be below zero for a while: the stick it starts is taken where leaving
+    the stop has failed, the gap opening no further than round-off.)"""
     scale = abs(off)
     d0 = off
     d1 = 0.0
@@ -654,18 +658,33 @@ def skip_start(c, lam, nz, off, h):
     if best > 0.0:
         return best
     tmin = h * 8.0**-13
+    # a gap this far below zero before it is clearly open is a contact (the test's bound on
+    # what round-off may do)
+    dip = 1e-9 * scale if gap else math.inf
     if d2 > 0.0:
         t = min(max(2.0 * math.sqrt(2.0 * eps / d2), tmin), h)
         f, _ = ev(c, lam, nz, off, t)
         if f > eps:
-            return t
+            return t if not gap or _above_until(c, lam, nz, off, dip, tmin, t) else -1.0
     t = tmin
     while t <= h * (1.0 + 1e-12):
         f, _ = ev(c, lam, nz, off, t)
+        if f < -dip:
+            return -1.0  # it closes first: a contact, not a departure
         if f > eps:
-            return t
+            return t if not gap or _above_until(c, lam, nz, off, dip, tmin, t) else -1.0
         t *= 8.0
     return -1.0
+
+
+@njit(cache=True, nogil=True)
+def _above_until(c, lam, nz, off, dip, t0, t1):
+    """Whether f > -dip on all of [t0, t1] (proven by :func:`first_root`): a sampled value
+    above zero says nothing of a dip between the samples, which would be a real contact
+    that the search, starting at t1, never saw."""
+    stack = np.empty((STACK, STACK_COLS))
+    w4 = np.empty(nz)
+    return first_root(c, lam, nz, off + dip, t0, t1, 1e-9 * (t1 - t0), stack, w4) < 0.0
 
 
 @njit(cache=True, nogil=True)
