@@ -799,6 +799,26 @@ def test_an_orbit_that_starts_on_a_stop_is_confirmed_from_there():
     assert np.max(np.abs(np.asarray(run.final_state) - x)) <= 1e-9 * np.max(np.abs(x))
 
 
+def test_a_saddle_the_trajectory_passes_is_not_reported_as_reached():
+    # A random cell of the orbit audit (seed 5): two period-1 orbits 8.5e-4 of the state apart.
+    # The trajectory comes to 2.3e-6 of the one without a multiplier along its stable manifold
+    # (300 times closer than when it was confirmed), then leaves it at ~1.025 a period for the
+    # stable one. Solver version 20 took "a hundred times closer at three returns" as reached
+    # and reported the saddle, 3.4e-6 dB off; an orbit without a multiplier must now be reached
+    # to periodicity_tol.
+    p = CellParams(theta=3.4322100042614636, sigma=0.3793026199838141,
+                   gamma_s=0.8738989301410469, xi=0.004494211941888832,
+                   g1=0.0037277109147143125, g2=0.0037277109147143125,
+                   gamma_r=0.4456221243185142, coupling="paper", modes=7)  # fmt: skip
+    r = simulate_point(p)
+    plain = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                             max_periods=20_000))  # fmt: skip
+    assert plain.outcome == r.outcome == "periodic" and r.response_period == 1
+    assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-8)
+    assert abs(r.transmittance_db - 3.6632260556) > 1e-6  # not the saddle's
+    assert r.floquet_multiplier is not None and r.floquet_multiplier < 1.0
+
+
 def test_an_orbit_confirmed_beside_a_chaotic_trajectory_is_not_reported():
     # the stress sweep's Latin-hypercube point 76: extrapolation confirms a period-1 orbit
     # (no Jacobian there) while the chaotic trajectory is 3 % of the state's size away from it;

@@ -122,8 +122,10 @@ CHECK_COST = 2
 # Periods per batch while the trajectory approaches an orbit waiting for it (_reached): it is
 # seen within this many periods of being reached (a batch costs ~10 µs more than its periods)
 PENDING_BATCH = 4
-# ... or once it has been this many times closer to the orbit than when the orbit was
-# confirmed at REACH_HOLD returns in a row (a chaotic trajectory may pass near an orbit once)
+# ... or, for an orbit with a multiplier below 1, once it has been this many times closer to
+# the orbit than when the orbit was confirmed at REACH_HOLD returns in a row (a chaotic
+# trajectory may pass near an orbit once; and without a multiplier the orbit may be a saddle
+# that the trajectory passes along its stable manifold)
 REACH_SHRINK = 100.0
 REACH_HOLD = 3
 # ... or once its last MAX_RRE returns follow the orbit's linearized map to this fraction of
@@ -1144,15 +1146,23 @@ class _Engine:
 
     def _reached(self, slack: float) -> _Orbit | None:
         """A pending orbit the trajectory has reached: it is on the orbit to
-        ``slack·periodicity_tol`` (1: what a sequence that repeats by itself must show), or
-        it has been ``REACH_SHRINK`` times closer than when the orbit was confirmed at its
-        last ``REACH_HOLD`` returns (it is attracted there, not passing by), with the pending
-        multiplier. An attracting orbit whose linearized map the trajectory did not follow when
-        it was confirmed is also reached once its last returns follow it (:func:`_follows`)."""
+        ``slack·periodicity_tol`` (1: what a sequence that repeats by itself must show), or,
+        where its multiplier proves it attracting, it has been ``REACH_SHRINK`` times closer
+        than when the orbit was confirmed at its last ``REACH_HOLD`` returns (it is attracted
+        there, not passing by), with the pending multiplier. An attracting orbit whose
+        linearized map the trajectory did not follow when it was confirmed is also reached
+        once its last returns follow it (:func:`_follows`).
+
+        An orbit without a multiplier must be reached to ``periodicity_tol``: at a random cell
+        (``orbit_audit.py --random 3000 --seed 5``, θ 3.43, γ_r 0.446) the trajectory came 300
+        times closer to a saddle orbit along its stable manifold, 2.3e-6 of the state, and then
+        left it for the stable orbit beside it (3.4e-6 dB away) at ~1.025 a period; solver
+        version 20 reported the saddle."""
         for pend in self.pending:
             o = pend.orbit
             near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
-            back = self._returns(o, REACH_HOLD)
+            attracting = pend.multiplier is not None and pend.multiplier < 1.0
+            back = self._returns(o, REACH_HOLD) if attracting else None
             if self._distance(o) <= near or (back and max(back) <= pend.found_at / REACH_SHRINK):
                 return replace(o, multiplier=pend.multiplier)
             if pend.matrix is not None:
