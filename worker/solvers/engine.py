@@ -1140,9 +1140,15 @@ class _Engine:
         if at.size == 0:
             return True
         near = np.max(np.abs(self.recent[at] - o.x0), axis=1) <= radius
+        return bool(np.all(self._impacts_before(at, q)[near] == _impacts(o.rows[:q])))
+
+    def _impacts_before(self, idx: list[int] | np.ndarray, q: int) -> np.ndarray:
+        """The impacts over the q periods before each sample ``idx`` of ``recent`` (whole
+        numbers: the differences of their running sum are exact; fewer periods before the
+        buffer's first)."""
         cum = np.concatenate(([0.0], np.cumsum(self.recent_imp)))
-        imp = cum[at + 1] - cum[at + 1 - q]  # impacts over the q periods before each return
-        return bool(np.all(imp[near] == _impacts(o.rows[:q])))
+        i = np.asarray(idx, dtype=np.int64) + 1
+        return cum[i] - cum[np.maximum(i - q, 0)]
 
     def _reached(self, slack: float) -> _Orbit | None:
         """A pending orbit the trajectory has reached: it is on the orbit to
@@ -1207,9 +1213,7 @@ class _Engine:
         # newest first: sample indices p apart; keep those on the newest sample's branch of the
         # map (same impacts over the p periods before it, same contact state at it)
         idx = list(range(RECENT - 1, RECENT - 1 - p * min(avail, MAX_RRE), -p))
-        # impacts over the p periods before each (whole numbers: the differences are exact)
-        cum = np.cumsum(self.recent_imp).tolist()
-        blocks = [cum[i] - (cum[i - p] if i >= p else 0.0) for i in idx]
+        blocks = self._impacts_before(idx, p).tolist()
         regs = [self.recent_reg[i] for i in idx]
         keep = 1
         while keep < len(idx) and blocks[keep] == blocks[0] and regs[keep] == regs[0]:
