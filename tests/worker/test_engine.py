@@ -18,6 +18,15 @@ from worker.solvers.engine import few_windows_factor, mser_stats, rre
 from worker.solvers.linear import linear_tail
 
 METHODS = ("event", "exponential", "euler")
+
+
+def tight_plain(p: CellParams, max_periods: int = 20_000):
+    """The orbit audit's reference: plain iteration (no extrapolation) to periodicity_tol
+    1e-12, the orbit the trajectory from rest itself settles on."""
+    return simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
+                                            max_periods=max_periods))  # fmt: skip
+
+
 FIG5 = dict(sigma=0.05, gamma_s=1.0)
 
 
@@ -451,8 +460,7 @@ def test_an_orbit_whose_map_its_newest_returns_follow_vetoes_the_irregular_claim
 def test_the_orbit_reported_is_the_one_tight_plain_iteration_reaches(kw, period, tol_db):
     p = cell(**kw)
     r = simulate_point(p)
-    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=4000))  # fmt: skip
+    tight = tight_plain(p, 4_000)
     assert r.outcome == tight.outcome == "periodic"
     assert r.response_period == tight.response_period == period
     assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=tol_db)
@@ -601,13 +609,11 @@ def test_a_slow_approach_is_not_claimed_irregular_by_tight_plain_iteration():
     d = simulate_point(p)
     assert d.outcome == "periodic" and d.response_period == 1
     assert 0.997 < d.floquet_multiplier < 0.999
-    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=20000))  # fmt: skip
+    tight = tight_plain(p)
     assert tight.outcome == "periodic" and tight.response_period == 1
     assert tight.transmittance_db == pytest.approx(d.transmittance_db, abs=1e-8)
     # with a budget that ends before: unsettled, and the reason says what it approaches
-    short = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=8000))  # fmt: skip
+    short = tight_plain(p, 8_000)
     assert short.outcome == "unsettled"
     assert "still converging to a period-1 orbit" in short.reason
 
@@ -678,8 +684,7 @@ def test_tight_plain_iteration_reports_a_slow_period_1_orbit_as_period_1():
     # differences shrink by 10 % there)
     p = cell(theta=1.0, xi=0.015, gamma_r=0.62)
     r = simulate_point(p)
-    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=20000))  # fmt: skip
+    tight = tight_plain(p)
     assert r.outcome == tight.outcome == "periodic"
     assert r.response_period == tight.response_period == 1
     assert tight.floquet_multiplier == pytest.approx(0.9985, abs=2e-4)
@@ -693,8 +698,7 @@ def test_a_steadily_converging_orbit_is_not_claimed_irregular():
     # off), the hundredfold test over 32 periods (a 0.33-fold shrink) not seeing it
     p = cell(theta=0.5, gamma_r=3.66)
     r = simulate_point(p)
-    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=3000))  # fmt: skip
+    tight = tight_plain(p, 3_000)
     assert r.outcome == tight.outcome == "periodic"
     assert r.response_period == tight.response_period == 1
     assert r.transmittance_db == pytest.approx(tight.transmittance_db, abs=1e-8)
@@ -726,8 +730,7 @@ def test_an_unstable_orbit_the_samples_reach_is_not_reported():
         assert m is not None, loose.reason
         assert int(m.group(1)) == 3 and 1.02 < float(m.group(2)) < 1.03
     # (a budget whose quarter, the earliest irregular claim, is past that transient chaos)
-    tight = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=12000))  # fmt: skip
+    tight = tight_plain(p, 12_000)
     assert tight.outcome == "periodic" and tight.response_period == 6
     assert tight.floquet_multiplier < 1.0
     assert abs(tight.transmittance_db - r.transmittance_db) > 1e-3
@@ -789,8 +792,7 @@ def test_an_orbit_that_starts_on_a_stop_is_confirmed_from_there():
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 3
     assert 0.0 < r.floquet_multiplier < 1.0
-    plain = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=20_000))  # fmt: skip
+    plain = tight_plain(p)
     assert plain.outcome == "periodic" and plain.response_period == 3
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
     x = np.asarray(r.final_state)
@@ -811,8 +813,7 @@ def test_a_saddle_the_trajectory_passes_is_not_reported_as_reached():
                    g1=0.0037277109147143125, g2=0.0037277109147143125,
                    gamma_r=0.4456221243185142, coupling="paper", modes=7)  # fmt: skip
     r = simulate_point(p)
-    plain = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=1e-12,
-                                             max_periods=20_000))  # fmt: skip
+    plain = tight_plain(p)
     assert plain.outcome == r.outcome == "periodic" and r.response_period == 1
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-8)
     assert abs(r.transmittance_db - 3.6632260556) > 1e-6  # not the saddle's
