@@ -11,6 +11,9 @@ import worker.simulate as simulate
 from worker import numba_cache
 from worker.model import CellParams, assemble, linear_transmittance_db
 from worker.simulate import PointResult, SolverSettings, simulate_chunk, simulate_point
+from worker.solvers import measure as ms
+from worker.solvers.dispatch import RUNS
+from worker.solvers.linear import linear_tail
 from worker.solvers.settings import OUTCOMES
 
 BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05)
@@ -30,6 +33,28 @@ def test_every_method_reports_the_same_record():
         keys = d.keys()
     assert {"outcome", "transmittance_db_se", "theta_eff_slope", "floquet_multiplier"} <= keys
     assert not {"converged", "theta_eff_mean"} & keys
+
+
+@pytest.mark.parametrize("method", ["exponential", "euler"])
+def test_a_contact_held_over_a_period_end_carries_into_the_next_batch(method):
+    # θ 0.3, gap 0.1, γ_r 1: the period-1 orbit is held on stop 1 at every period end. The
+    # episode goes on into the next period, and the next batch (the kernels store a period's
+    # row and its contact state apart: a first version of the shared row writer dropped the
+    # latter, and 18 of 98 stepping points moved), and is not a new impact there: the
+    # time-stepping kernels count what the event solver counts, one impact a stop a period.
+    p = cell(gamma_r=1.0, g1=0.1, g2=0.1)
+    s = SolverSettings(method=method)
+    sys_ = assemble(p)
+    run = RUNS[method](sys_, s, linear_tail(sys_), True, 1e6)
+    run.reset(np.zeros(run.nx))
+    rows, samples = np.zeros((40, ms.ROW)), np.zeros((40, run.nx))
+    assert run.advance(40, False, 0, rows, samples)[0] == 40
+    assert np.all(rows[20:, ms.M_REGIME] == 1.0)  # held on stop 1 at the period ends
+    assert run.kst[ms.K_CONTACT] == 1.0  # and so at the next batch's start
+    ref = simulate_point(p, SolverSettings())
+    r = simulate_point(p, s)
+    assert ref.outcome == r.outcome == "periodic" and ref.response_period == r.response_period
+    assert r.impacts_per_period == ref.impacts_per_period == (1.0, 1.0)
 
 
 def test_amplitude_is_refined_between_samples():

@@ -15,10 +15,9 @@ from numba import njit
 
 from worker.model import System
 from worker.solvers import measure as ms
-from worker.solvers.base import KernelRun
 from worker.solvers.lcp import LEMKE_OK, lemke_nb, lemke_workspace, two_stop_impulses
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
-from worker.solvers.stepping import close_row, contact_step, extrema, record_step
+from worker.solvers.stepping import SteppingRun, contact_step, extrema, record_step
 
 DEFAULT_STEPS = 1024
 
@@ -103,8 +102,9 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 )
             if hist.shape[0] > 0:
                 record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
-        close_row(rows, k, kst, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
-                  nsteps, ncontact, 0.0, contact)  # fmt: skip
+        ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
+                     nsteps, ncontact, 0.0, contact)  # fmt: skip
+        kst[ms.K_CONTACT] = contact  # the contact episode goes on into the next batch
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
                                 lin_gate, checks, div_limit, tol)  # fmt: skip
@@ -168,10 +168,11 @@ def default_steps(sys_: System) -> int:
     return n
 
 
-class EulerRun(KernelRun):
+class EulerRun(SteppingRun):
     """A point integrated by the paper's scheme."""
 
     name = "euler"
+    kernel = staticmethod(euler_kernel)
 
     @classmethod
     def check_point(cls, sys_: System, settings: SolverSettings) -> int:
@@ -201,13 +202,3 @@ class EulerRun(KernelRun):
             settings.lcp == "lemke", np.zeros((2, 2)), np.zeros(2), *lemke_workspace(2),
         )  # fmt: skip
         self.xn = np.zeros(self.nx)
-
-    def _advance(self, n, measure, checks, rows, samples):
-        return euler_kernel(
-            self.x, self.kst, self.ring, n, measure, checks, rows, samples, self.hist, self.xh,
-            *self.arrays, self.lin_L, self.lin_xp, self.lin_amp, self.lin_gate, self.div_limit,
-            self.tol, self.xn,
-        )  # fmt: skip
-
-    def history_rows_per_period(self) -> int:
-        return self.spp + 8

@@ -18,11 +18,10 @@ from numba import njit
 
 from worker.model import System
 from worker.solvers import measure as ms
-from worker.solvers.base import KernelRun
 from worker.solvers.lcp import two_stop_impulses
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
 from worker.solvers.stepping import (
-    close_row,
+    SteppingRun,
     contact_step,
     extrema,
     gauss_rows,
@@ -156,8 +155,9 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                     )  # fmt: skip
                 if hist.shape[0] > 0:
                     record_step(hist, xh, kst, tau_c + (js + 1) * dtf, x, nx, W, d, N, n, l1, l2)
-        close_row(rows, k, kst, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
-                  nsteps, ncontact, ncoarse, contact)  # fmt: skip
+        ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
+                     nsteps, ncontact, ncoarse, contact)  # fmt: skip
+        kst[ms.K_CONTACT] = contact  # the contact episode goes on into the next batch
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
                                 lin_gate, checks, div_limit, tol)  # fmt: skip
@@ -189,10 +189,11 @@ def fourier_rows(sys_: System, A_aug: np.ndarray, dt: float) -> np.ndarray:
     return np.ascontiguousarray(R @ integral)
 
 
-class ExponentialRun(KernelRun):
+class ExponentialRun(SteppingRun):
     """A point integrated by the exact propagator with Moreau impulses."""
 
     name = "exponential"
+    kernel = staticmethod(exponential_kernel)
 
     def __init__(self, sys_: System, settings: SolverSettings, *args) -> None:
         super().__init__(sys_, settings, *args)
@@ -242,13 +243,3 @@ class ExponentialRun(KernelRun):
             settings.adaptive,
         )  # fmt: skip
         self.xn = np.zeros(nx)
-
-    def _advance(self, n, measure, checks, rows, samples):
-        return exponential_kernel(
-            self.x, self.kst, self.ring, n, measure, checks, rows, samples, self.hist, self.xh,
-            *self.arrays, self.lin_L, self.lin_xp, self.lin_amp, self.lin_gate, self.div_limit,
-            self.tol, self.xn,
-        )  # fmt: skip
-
-    def history_rows_per_period(self) -> int:
-        return self.spp + 8

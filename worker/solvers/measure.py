@@ -118,6 +118,30 @@ def begin_row(rows, k):
     rows[k, M_TAIL] = -1.0
 
 
+@njit(cache=True, nogil=True)
+def close_row(rows, k, smin, smax, h, vv, vb, imp1, imp2, peak, last, nsteps, ncontact, ncoarse,
+              regime):  # fmt: skip
+    """Write a period's measurements into its row: the range of ``s``, the first harmonics
+    ``h`` (S_re, S_im, Sb_re, Sb_im), the phase-portrait integrals, impacts, the peak impulse,
+    the last impact's phase, the work counts and the regime at the period's end. Kernels keep
+    them in local variables during the period and store them once: stores to the rows inside
+    the step loop would keep the compiler from holding the state in registers."""
+    rows[k, M_SMIN] = smin
+    rows[k, M_SMAX] = smax
+    for j in range(4):
+        rows[k, M_S_RE + j] = h[j]
+    rows[k, M_VV] = vv
+    rows[k, M_VB] = vb
+    rows[k, M_IMP1] = imp1
+    rows[k, M_IMP2] = imp2
+    rows[k, M_PEAK] = peak
+    rows[k, M_LAST_IMPACT] = last
+    rows[k, M_STEPS] = nsteps
+    rows[k, M_CONTACT] = ncontact
+    rows[k, M_COARSE] = ncoarse
+    rows[k, M_REGIME] = regime
+
+
 @njit(cache=True, nogil=True, inline="always")
 def dot(a, x, n):
     """Σ a[i] x[i] over the first n entries."""

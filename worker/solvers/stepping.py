@@ -2,16 +2,19 @@
 
 A period's measurements are accumulated in local variables by the helpers below (the range of
 ``s``, contact episodes, first harmonics, the phase-portrait integrals) and written to the
-period's row once, by :func:`close_row`: stores to the rows inside the step loop would keep the
-compiler from holding the state and the matrices in registers (measured: 3× slower steps).
+period's row once, by ``measure.close_row``: stores to the rows inside the step loop would keep
+the compiler from holding the state and the matrices in registers (measured: 3× slower steps).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
 
 from worker.solvers import measure as ms
+from worker.solvers.base import KernelRun
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -92,28 +95,6 @@ def portrait(gl, glb, P, x, cf, sf, dt, nx):
 
 
 @njit(cache=True, nogil=True)
-def close_row(rows, k, kst, smin, smax, h, vv, vb, imp1, imp2, peak, last, nsteps, ncontact,
-              ncoarse, contact):  # fmt: skip
-    """Write a period's accumulated measurements (kept in registers during the period, so the
-    step loop stores nothing to memory but the state) into its row."""
-    rows[k, ms.M_SMIN] = smin
-    rows[k, ms.M_SMAX] = smax
-    for j in range(4):
-        rows[k, ms.M_S_RE + j] = h[j]
-    rows[k, ms.M_VV] = vv
-    rows[k, ms.M_VB] = vb
-    rows[k, ms.M_IMP1] = imp1
-    rows[k, ms.M_IMP2] = imp2
-    rows[k, ms.M_PEAK] = peak
-    rows[k, ms.M_LAST_IMPACT] = last
-    rows[k, ms.M_STEPS] = nsteps
-    rows[k, ms.M_CONTACT] = ncontact
-    rows[k, ms.M_COARSE] = ncoarse
-    rows[k, ms.M_REGIME] = contact
-    kst[ms.K_CONTACT] = contact
-
-
-@njit(cache=True, nogil=True)
 def record_step(hist, xh, kst, tau, x, nx, W, d, N, n, l1, l2):
     """One history sample after a step."""
     ms.record(hist, xh, kst, tau, x[n], ms.dot(W, x, N), ms.dot(d, x, n), x[N + n],
@@ -129,3 +110,20 @@ def gauss_rows(P_of_t, dt: float, N: int, d: np.ndarray) -> np.ndarray:
         P = P_of_t(t)
         out.append([P[N + n, :], d @ P[N : N + n, :]])
     return np.ascontiguousarray(np.array(out))
+
+
+class SteppingRun(KernelRun):
+    """The run of a time-stepping kernel. Subclasses set ``kernel`` (a compiled kernel, as a
+    staticmethod) and, in ``__init__``, ``arrays`` (what it takes after the run's shared
+    arrays) and ``xn`` (a scratch state)."""
+
+    kernel: Callable[..., tuple[int, int, int]]
+    arrays: tuple
+    xn: np.ndarray
+
+    def _advance(self, n, measure, checks, rows, samples):
+        return self.kernel(
+            self.x, self.kst, self.ring, n, measure, checks, rows, samples, self.hist, self.xh,
+            *self.arrays, self.lin_L, self.lin_xp, self.lin_amp, self.lin_gate, self.div_limit,
+            self.tol, self.xn,
+        )  # fmt: skip

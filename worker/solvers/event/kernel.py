@@ -781,22 +781,8 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         if f >= 0 and failed == ms.END_NONE:
             al[f] = f_scale * fcs[r, 0]
             have = False
-        rows[k, ms.M_SMIN] = smin
-        rows[k, ms.M_SMAX] = smax
-        rows[k, ms.M_S_RE] = h0
-        rows[k, ms.M_S_IM] = h1
-        rows[k, ms.M_SB_RE] = h2
-        rows[k, ms.M_SB_IM] = h3
-        rows[k, ms.M_VV] = vv
-        rows[k, ms.M_VB] = vb
-        rows[k, ms.M_IMP1] = imp1
-        rows[k, ms.M_IMP2] = imp2
-        rows[k, ms.M_PEAK] = peak
-        rows[k, ms.M_LAST_IMPACT] = last
-        rows[k, ms.M_STEPS] = nsteps
-        rows[k, ms.M_COARSE] = ncoarse
-        rows[k, ms.M_CONTACT] = nimpacts
-        rows[k, ms.M_REGIME] = r
+        ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
+                     nsteps, nimpacts, ncoarse, r)  # fmt: skip
         _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
         kst[ms.K_PERIOD] += 1.0
         _state(V, r, al, nk[r], nzr[r], y)

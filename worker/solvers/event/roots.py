@@ -341,25 +341,15 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1,
     bound_weights(c, lam, nz, w4)
     total = t1 - t0
     tiny = 1e-9 * total
-    stack[0, 0] = t0
-    stack[0, 1] = t1
-    stack[0, 2] = f0
-    stack[0, 3] = d0
-    stack[0, 4] = f1
-    stack[0, 5] = d1
+    _first_piece(stack, t0, t1, f0, d0, f1, d1)
     stack[0, 10] = -1.0
     stack[0, 11] = -1.0 if P is None else 0.0
     sp = 1
     while sp > 0:
         sp -= 1
-        lo = stack[sp, 0]
-        hi = stack[sp, 1]
-        flo = stack[sp, 2]
-        dlo = stack[sp, 3]
+        lo, hi, flo, dlo, fhi, dhi = _piece(stack, sp)
         if flo <= 0.0:
             return lo
-        fhi = stack[sp, 4]
-        dhi = stack[sp, 5]
         if math.isnan(fhi):  # an inner point of a split: evaluated now, for both its pieces
             if P is None:
                 fhi, dhi = ev(c, lam, nz, off, hi)
@@ -381,13 +371,42 @@ def _first_root_plain(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, f1, d1,
             if cubic_above(flo, dlo, fhi, dhi, ln, bound4(w4, lam, nz, lo, hi), 0.0):
                 continue
             if ln <= tiny or sp >= STACK - 5:
-                tmin = cubic_minmax(flo, dlo, fhi, dhi, ln)[1]
-                tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
-                fc, _ = ev(c, lam, nz, off, tc)
-                if fc <= 0.0:
-                    return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
+                t = _touch(c, lam, nz, off, lo, hi, flo, dlo, fhi, dhi, ln, tol_t)
+                if t >= 0.0:
+                    return t
                 continue
         sp = _push_quarters(stack, sp, lo, hi, ln, flo, dlo, fhi, dhi)
+    return -1.0
+
+
+@njit(cache=True, nogil=True)
+def _first_piece(stack, t0, t1, f0, d0, f1, d1):
+    """The search's first piece, [t0, t1] with f and ḟ at both ends, in the stack's row 0."""
+    stack[0, 0] = t0
+    stack[0, 1] = t1
+    stack[0, 2] = f0
+    stack[0, 3] = d0
+    stack[0, 4] = f1
+    stack[0, 5] = d1
+
+
+@njit(cache=True, nogil=True, inline="always")  # the search's innermost loop
+def _piece(stack, sp):
+    """The piece in the stack's row ``sp``: lo, hi, and f and ḟ at both ends (f(hi) NaN: an
+    inner point of a split, not evaluated yet)."""
+    return stack[sp, 0], stack[sp, 1], stack[sp, 2], stack[sp, 3], stack[sp, 4], stack[sp, 5]
+
+
+@njit(cache=True, nogil=True)
+def _touch(c, lam, nz, off, lo, hi, flo, dlo, fhi, dhi, ln, tol_t):
+    """The root on a piece too short to split (or with the stack full), positive at both ends:
+    where f's minimum there (from the Hermite cubic's, refined) is not above zero, the first
+    root before it; else -1 (a piece clear of zero)."""
+    tmin = cubic_minmax(flo, dlo, fhi, dhi, ln)[1]
+    tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
+    fc, _ = ev(c, lam, nz, off, tc)
+    if fc <= 0.0:
+        return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
     return -1.0
 
 
@@ -452,12 +471,7 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
             bfast += a * (1.0 if r <= 0.0 else math.exp(r * total))
             w4[k] = -w4[k]  # marks a fast mode for the slow bound
     tiny = 1e-9 * total
-    stack[0, 0] = t0
-    stack[0, 1] = t1
-    stack[0, 2] = f0
-    stack[0, 3] = d0
-    stack[0, 4] = f1
-    stack[0, 5] = d1
+    _first_piece(stack, t0, t1, f0, d0, f1, d1)
     stack[0, 6] = fs0
     stack[0, 7] = ds0
     stack[0, 8] = fs1
@@ -466,14 +480,9 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
     sp = 1
     while sp > 0:
         sp -= 1
-        lo = stack[sp, 0]
-        hi = stack[sp, 1]
-        flo = stack[sp, 2]
-        dlo = stack[sp, 3]
+        lo, hi, flo, dlo, fhi, dhi = _piece(stack, sp)
         if flo <= 0.0:
             return lo
-        fhi = stack[sp, 4]
-        dhi = stack[sp, 5]
         if math.isnan(fhi):  # as in _first_root_plain
             fhi, dhi, sfh, sdh = _ev_split(c, lam, nz, off, hi, cut2)
             stack[sp, 8] = sfh
@@ -507,11 +516,9 @@ def _first_root_split(c, lam, nz, off, t0, t1, tol_t, stack, w4, f0, d0, fs0, ds
                                            stack[sp, 9]):  # fmt: skip
                 continue
             if ln <= tiny or sp >= STACK - 5:
-                tmin = cubic_minmax(flo, dlo, fhi, dhi, ln)[1]
-                tc = crit(c, lam, nz, lo, hi, dlo, dhi, lo + tmin)
-                fc, _ = ev(c, lam, nz, off, tc)
-                if fc <= 0.0:
-                    return refine(c, lam, nz, off, lo, tc, flo, fc, tol_t)
+                t = _touch(c, lam, nz, off, lo, hi, flo, dlo, fhi, dhi, ln, tol_t)
+                if t >= 0.0:
+                    return t
                 continue
         lsf = stack[sp, 6]
         lsd = stack[sp, 7]
