@@ -104,7 +104,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, 0.0, contact)  # fmt: skip
-        kst[ms.K_CONTACT] = contact  # the contact episode goes on into the next batch
+        kst[ms.K_CONTACT] = contact  # read at the next period's start, this batch or the next
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
                                 lin_gate, checks, div_limit, tol)  # fmt: skip
