@@ -1,6 +1,7 @@
 """Numerical stability under stress: extreme parameters for every method, against references.
 
     python benchmarks/stress.py [--out benchmarks/results] [--lhs 100] [--timeout 20] [--quick]
+    python benchmarks/stress.py --random N [--seed S]      # N random cells only
 
 Design (base point θ 0.3, σ 0.05, γ_s 1, ξ 0.05, gap 0.1, 5 modes):
 
@@ -16,7 +17,7 @@ Design (base point θ 0.3, σ 0.05, γ_s 1, ξ 0.05, gap 0.1, 5 modes):
   references) and huge gaps (1e10, 1e12 at γ_r 0.85 and 2.0: ``linear``, the closed form);
 * a Latin-hypercube sample of combinations (θ, σ, γ_s, γ_r log-uniform over those ranges, ξ
   uniform in 0…0.5, g1 log-uniform in 1e-4…1e2 with g2/g1 log-uniform in 1e-2…1e2, modes 1…30,
-  coupling alternating), seed 7;
+  coupling alternating), seed 7 (``--seed``);
 * a few runs of 10,000 periods (``early_stop`` off).
 
 Every point runs through ``simulate_chunk`` for each method (``event``, the default;
@@ -38,6 +39,10 @@ non-finite-record, timeout, crashed.
 
 Also: the modal convergence table (Γ against modes 1…30, ``event``) and ``euler`` near and
 past its stability limit. Writes ``stress.md`` and ``stress.csv``.
+
+``--random N`` runs only N Latin-hypercube cells of seed ``--seed`` (the same ranges, checks
+and references; no extremes, named cases, long runs or tables), a fresh sample where the
+sweep's own seed 7 has been looked at already, and writes ``stress_random<S>.md`` and ``.csv``.
 """
 
 from __future__ import annotations
@@ -550,6 +555,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lhs", type=int, default=100, help="Latin-hypercube points")
     ap.add_argument("--timeout", type=float, default=20.0, help="wall budget per run, s")
     ap.add_argument("--quick", action="store_true", help="10 LHS points, no long runs")
+    ap.add_argument(
+        "--random", type=int, default=0, help="only this many Latin-hypercube cells of --seed"
+    )
+    ap.add_argument("--seed", type=int, default=7, help="the Latin-hypercube sample's seed")
     argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
     command = " ".join(["python benchmarks/stress.py", *argv])
@@ -557,10 +566,14 @@ def main(argv: list[str] | None = None) -> None:
     n_lhs = 10 if args.quick else args.lhs
     t_start = time.perf_counter()
 
-    design = [("oat", p) for p in oat_points()] + [("case", p) for p in named_points()]
-    design += [("lhs", p) for p in lhs_points(n_lhs)]
-    if not args.quick:
-        design += [("long", p) for p in long_points()]
+    name = f"stress_random{args.seed}" if args.random else "stress"
+    if args.random:
+        design = [("lhs", p) for p in lhs_points(args.random, seed=args.seed)]
+    else:
+        design = [("oat", p) for p in oat_points()] + [("case", p) for p in named_points()]
+        design += [("lhs", p) for p in lhs_points(n_lhs, seed=args.seed)]
+        if not args.quick:
+            design += [("long", p) for p in long_points()]
     runner = Runner(args.timeout)
     rows = []
     for i, (kind, pt) in enumerate(design):
@@ -608,17 +621,18 @@ def main(argv: list[str] | None = None) -> None:
         "steady_period", "steps", "steps_per_period", "reason", "ref_reason", "ref_status",
         "ref_wall_s",
     ]  # fmt: skip
-    with open(args.out / "stress.csv", "w", newline="") as fh:
+    with open(args.out / f"{name}.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
 
     lines = report(rows, design, args, sweep_s, command)
-    extra_rows: list[dict] = []
-    modal_table(lines, extra_rows)
-    euler_table(lines, extra_rows)
+    if not args.random:
+        extra_rows: list[dict] = []
+        modal_table(lines, extra_rows)
+        euler_table(lines, extra_rows)
     lines.append(f"Total run time {time.perf_counter() - t_start:.0f} s.")
-    (args.out / "stress.md").write_text("\n".join(lines) + "\n")
+    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -642,13 +656,19 @@ def point_text(r: dict[str, Any]) -> str:
 
 def report(rows, design, args, sweep_s, command) -> list[str]:
     count = Counter(k for k, _ in design)
+    what = (
+        f"{count['lhs']} Latin-hypercube cells of seed {args.seed} only"
+        if args.random
+        else f"{count['oat']} one-at-a-time extremes, {count['case']} named cases, "
+        f"{count['lhs']} Latin-hypercube points (seed {args.seed}), {count['long']} runs of "
+        f"{LONG_PERIODS} periods"
+    )
     lines = [
-        "# Stress sweep",
+        "# Stress sweep" + (f": random cells, seed {args.seed}" if args.random else ""),
         "",
-        f"`{command}` — {count['oat']} one-at-a-time extremes, {count['case']} named cases, "
-        f"{count['lhs']} Latin-hypercube points, {count['long']} runs of {LONG_PERIODS} "
-        f"periods; each through `simulate_chunk`, one worker process (the sweep's only one), "
-        f"wall budget {args.timeout:.0f} s per run. Sweep {sweep_s:.0f} s on {machine()}.",
+        f"`{command}` — {what}; each through `simulate_chunk`, one worker process (the sweep's "
+        f"only one), wall budget {args.timeout:.0f} s per run. Sweep {sweep_s:.0f} s on "
+        f"{machine()}.",
         "",
         "Reference: pinned closed form (g1 = g2 = 0), linear closed form (the method reports "
         "`linear`, or gaps >= 1e6 and no impacts), else `event` at tight settings (256 "
