@@ -40,7 +40,7 @@ def test_a_contact_held_over_a_period_end_carries_into_the_next_batch(method):
     # θ 0.3, gap 0.1, γ_r 1: the period-1 orbit is held on stop 1 at every period end. The
     # episode goes on into the next period, and the next batch (the kernels store a period's
     # row and its contact state apart: a first version of the shared row writer dropped the
-    # latter, and 18 of 98 stepping points moved), and is not a new impact there: the
+    # latter, and 18 of 92 stepping records moved), and is not a new impact there: the
     # time-stepping kernels count what the event solver counts, one impact a stop a period.
     p = cell(gamma_r=1.0, g1=0.1, g2=0.1)
     s = SolverSettings(method=method)
