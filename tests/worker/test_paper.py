@@ -130,7 +130,7 @@ def test_high_frequency_curves_coincide_with_the_impact_free_line() -> None:
 
 
 def test_impacts_stop_at_a_lower_frequency_for_larger_gaps() -> None:
-    # Last impacting γ_r of paper-fig5-theta1: 5.70, 5.38, 5.26, 5.18, 5.10 for g̃ 0.1 … 1.
+    # Last impacting γ_r of paper-fig5-theta1: 5.70, 5.38, 5.28, 5.16, 5.08 for g̃ 0.1 … 1.
     def impacting(g_r: float) -> list[bool]:
         return [point(g_r, gap).outcome != "linear" for gap in GAPS]
 
