@@ -78,9 +78,18 @@ def cell_of(point: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+#: Solver settings added after the store's first points, left out of a document while they
+#: are at their default, so that every key stored before stays the key of the same settings.
+_LATER_SETTINGS = {"max_events_per_period": None}
+
+
 def solver_document(solver: Mapping[str, Any]) -> dict[str, Any]:
     """Every solver setting of ``solver`` (defaults filled), as hashed and stored."""
-    return dataclasses.asdict(SolverSettings(**solver))
+    doc = dataclasses.asdict(SolverSettings(**solver))
+    for name, default in _LATER_SETTINGS.items():
+        if doc[name] == default:
+            del doc[name]
+    return doc
 
 
 def _dumps(doc: Any) -> str:

@@ -225,6 +225,8 @@ STUDY_SOLVER_CAPS: dict[str, dict[str, Any]] = {
         "the convergence tests need at most 16,384; max_periods × steps_per_period is at "
         "most 1e9")},
     "coarse_steps": {"le": 65_536, "why": "free-flight steps per period (default 64)"},
+    "max_events_per_period": {"le": 1_000_000, "why": (
+        "events in one period of one point (default 1000); a million are about 10 s a period")},
 }  # fmt: skip
 
 

@@ -179,6 +179,21 @@ def test_chattering_is_ended_by_the_event_budget():
     assert not r.failed and r.contact_steps > 3 * r.periods
 
 
+def test_the_event_budget_is_a_solver_setting():
+    p = cell(gamma_r=1.2, g1=0.01, g2=0.01)
+    small = simulate_point(p, SolverSettings(max_periods=40, window=5, max_events_per_period=3))
+    assert small.failed and "more than 3 events in period 1" in small.reason
+    assert "max_events_per_period raises the budget" in small.reason  # what to do about it
+    # a direct call's option wins over the setting
+    r = simulate_point(p, SolverSettings(max_periods=40, window=5, max_events_per_period=3),
+                       max_events_per_period=1000)  # fmt: skip
+    big = simulate_point(p, SolverSettings(max_periods=40, window=5, max_events_per_period=1000))
+    default = simulate_point(p, SolverSettings(max_periods=40, window=5))
+    for res in (r, big):
+        assert not res.failed
+        assert res.as_dict() | {"wall_s": 0} == default.as_dict() | {"wall_s": 0}
+
+
 def test_bad_event_options_are_refused_with_the_field():
     with pytest.raises(ValueError, match="event_tol must be in"):
         simulate_point(cell(gamma_r=1.0), EVENT, event_tol=0.0)

@@ -211,6 +211,11 @@ def test_chunk_reports_bad_points_instead_of_raising():
         ({"stat_tol_db": float("nan")}, "stat_tol_db must be finite, got nan"),
         ({"extrapolate": "yes"}, "extrapolate must be true or false"),
         ({"lcp": "pgs"}, "lcp must be one of closed, lemke"),
+        ({"max_events_per_period": 0}, "max_events_per_period must be an integer in 1"),
+        (
+            {"method": "euler", "max_events_per_period": 10},
+            "max_events_per_period applies to method 'event' only, got method 'euler'",
+        ),
     ],
 )
 def test_bad_solver_settings(kw, message):

@@ -12,6 +12,7 @@ from worker.checks import check_fields, integer
 __all__ = [
     "DEFAULT_METHOD",
     "LCP_SOLVERS",
+    "MAX_EVENTS_PER_PERIOD",
     "MAX_STEPS_PER_PERIOD",
     "METHODS",
     "OUTCOMES",
@@ -31,6 +32,7 @@ METHODS = ("event", "exponential", "euler")
 DEFAULT_METHOD = "event"
 LCP_SOLVERS = ("closed", "lemke")
 MAX_STEPS_PER_PERIOD = 10_000_000
+MAX_EVENTS_PER_PERIOD = 10**9  # the widest event budget a point may be given
 
 #: How a point ended (docs/solvers.md, "How a point ends"). The order is the CF flag order.
 OUTCOMES = ("linear", "periodic", "irregular", "unsettled", "failed")
@@ -117,6 +119,10 @@ class SolverSettings:
         integrate them like any other response (to check a method against the closed form).
     lcp : {"closed", "lemke"}
         ``euler`` only: the two-stop LCP of each step in closed form or by Lemke's algorithm.
+    max_events_per_period : int or None
+        ``event`` only: the events (impacts, releases) one period may hold before the run ends
+        ``failed`` as chattering (default 1000). Large-θ cells at low γ_r can have hundreds of
+        real impacts a period; raising it lets them run, at about 10 µs an event.
     """
 
     method: str = field(default=DEFAULT_METHOD, metadata={"choices": METHODS})
@@ -135,12 +141,21 @@ class SolverSettings:
     extrapolate: bool = field(default=True, metadata={"boolean": True})
     linear_tail: bool = field(default=True, metadata={"boolean": True})
     lcp: str = field(default="closed", metadata={"choices": LCP_SOLVERS})
+    max_events_per_period: int | None = field(
+        default=None,
+        metadata={"integer": True, "ge": 1, "le": MAX_EVENTS_PER_PERIOD, "optional": True},
+    )
 
     def __post_init__(self) -> None:
         check_fields(self)  # every field's range is its metadata above
         if self.window >= self.max_periods:
             raise ValueError(
                 f"window must be < max_periods ({self.max_periods}), got {self.window}"
+            )
+        if self.max_events_per_period is not None and self.method != "event":
+            # the time-stepping methods count no events: a budget there would do nothing
+            raise ValueError(
+                f"max_events_per_period applies to method 'event' only, got method {self.method!r}"
             )
 
 

@@ -4,6 +4,7 @@ housekeeping and solver versions, on a real catalogue database (SQLite; PostgreS
 from __future__ import annotations
 
 import copy
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,7 @@ from service.studies.points import point_key, study_keys
 from service.studies.runner import run_study
 from service.studies.schema import Study
 from tests.service.helpers import FAST_SOLVER, tiny_study
-from worker.simulate import SOLVER_VERSION, PointLimits
+from worker.simulate import SOLVER_VERSION, PointLimits, SolverSettings
 
 
 def study(definition: dict[str, Any]) -> Study:
@@ -66,6 +67,38 @@ def test_the_key_is_what_determines_the_point() -> None:
     assert point_key(p, solver, after="0" * 32) != base
     assert point_key(p, solver, version=SOLVER_VERSION + "x") != base
     assert point_key(p, solver) == base and len(base) == pts.KEY_LENGTH
+
+
+def test_a_setting_added_later_keeps_the_keys_stored_before_it() -> None:
+    # max_events_per_period came after the store's first points: at its default (None) it is
+    # left out of the hashed document, so the keys of every earlier study stay valid; given,
+    # it is a setting like any other.
+    a = study(tiny_study("a", num=4))
+    doc = pts.solver_document(a.solver.settings().__dict__)
+    assert "max_events_per_period" not in doc and "steps_per_period" in doc
+    assert set(doc) == {f.name for f in dataclasses.fields(SolverSettings)} - {
+        "max_events_per_period"
+    }
+    given = tiny_study("a", num=4)
+    given["solver"]["max_events_per_period"] = 5000
+    b = study(given)
+    assert b.id != a.id
+    assert pts.solver_document(b.solver.settings().__dict__)["max_events_per_period"] == 5000
+    assert not set(study_keys(b)) & set(study_keys(a))
+
+
+@pytest.mark.slow  # runs whole (small) studies
+def test_a_studys_event_budget_reaches_its_points(tmp_path: Path) -> None:
+    # One event a period: every point of this study impacts, so every point fails with the
+    # budget it was given; without the setting none fails.
+    defn = tiny_study("budget", num=3, gaps=(0.1,), max_events_per_period=1)
+    summary = run_study(study(defn), tmp_path / "small", serial=True)
+    with xr.open_dataset(summary.path) as ds:
+        reasons = [str(r) for r in ds.reason.values.ravel()]
+    assert summary.failed == len(reasons) == 3
+    assert all(r.startswith("event budget exceeded: more than 1 events") for r in reasons)
+    assert run_study(study(tiny_study("budget", num=3, gaps=(0.1,))), tmp_path / "default",
+                     serial=True).failed == 0  # fmt: skip
 
 
 def test_sweep_points_are_chained_to_their_line() -> None:

@@ -227,6 +227,12 @@ def test_new_solver_settings_are_settable_and_validated() -> None:
         ({"lcp": "pivot"}, "solver.lcp", "'closed' or 'lemke'"),
         ({"early_stop": "sometimes"}, "solver.early_stop", "boolean"),
         ({"method": "rk4"}, "solver.method", "'event', 'exponential' or 'euler'"),
+        ({"max_events_per_period": 2_000_000}, "solver.max_events_per_period", "1000000"),
+        (
+            {"max_events_per_period": 100, "method": "euler"},
+            "solver",
+            "max_events_per_period applies to method 'event' only, got method 'euler'",
+        ),
     ]:
         bad = _base()
         bad["solver"] = solver

@@ -12,7 +12,7 @@ from worker.solvers.event import monodromy as mono
 from worker.solvers.event import primitives as pm
 from worker.solvers.event.regimes import MAX_COND, prepare_event
 from worker.solvers.event.roots import STACK, STACK_COLS
-from worker.solvers.settings import SolverSettings, int_in
+from worker.solvers.settings import MAX_EVENTS_PER_PERIOD, SolverSettings, int_in
 
 DEFAULT_GRID = 64
 DEFAULT_EVENT_TOL = 1e-12
@@ -40,9 +40,10 @@ class EventRun(KernelRun):
 
     @classmethod
     def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL,
-                      max_events_per_period: int = DEFAULT_MAX_EVENTS_PER_PERIOD,
-                      **others: object) -> tuple[float, int]:  # fmt: skip
-        """Validated ``(event_tol, max_events_per_period)``; other options are refused."""
+                      max_events_per_period: int | None = None,
+                      **others: object) -> tuple[float, int | None]:  # fmt: skip
+        """Validated ``(event_tol, max_events_per_period)`` (None: the settings' budget);
+        other options are refused."""
         super().check_options(**others)
         if (
             isinstance(event_tol, bool)
@@ -50,12 +51,16 @@ class EventRun(KernelRun):
             or not (0.0 < event_tol < 1e-2)
         ):
             raise ValueError(f"event_tol must be in (0, 0.01), got {event_tol!r}")
-        events = int_in("max_events_per_period", max_events_per_period, 1, 10**9)
+        if max_events_per_period is None:
+            return float(event_tol), None
+        events = int_in("max_events_per_period", max_events_per_period, 1, MAX_EVENTS_PER_PERIOD)
         return float(event_tol), events
 
     def __init__(self, sys_: System, settings: SolverSettings, *args, **options) -> None:
         super().__init__(sys_, settings, *args)
-        event_tol, self.max_events = self.check_options(**options)
+        event_tol, events = self.check_options(**options)
+        # the option (direct calls) over the setting (studies) over the default
+        self.max_events = events or settings.max_events_per_period or DEFAULT_MAX_EVENTS_PER_PERIOD
         p = sys_.params
         N = sys_.ndof
         nzm = 2 * N + 2
@@ -167,6 +172,6 @@ class EventRun(KernelRun):
         if code == ms.END_CHATTER:
             return (
                 f"event budget exceeded: more than {self.max_events} events in period {period} "
-                f"(chattering)"
+                f"(chattering; the solver setting max_events_per_period raises the budget)"
             )
         return super().failure_reason(code)
