@@ -14,7 +14,7 @@ from worker.solvers import engine
 from worker.solvers import measure as ms
 from worker.solvers.base import ExactMonodromy
 from worker.solvers.dispatch import RUNS
-from worker.solvers.engine import few_windows_factor, mser_stats, rre
+from worker.solvers.engine import budget_for_error, few_windows_factor, mser_stats, rre
 from worker.solvers.linear import linear_tail
 
 METHODS = ("event", "exponential", "euler")
@@ -257,6 +257,29 @@ def test_three_standard_errors_hold_the_mean_even_with_few_windows():
         assert held / len(y) >= 0.99, (m, held / len(y))
     assert few_windows_factor(8) == pytest.approx(1.51, abs=0.01)
     assert few_windows_factor(1000) == pytest.approx(1.0, abs=0.005)
+
+
+def test_the_budget_an_unsettled_error_needs_is_where_that_error_is_reached():
+    # Stationary window values after a transient: the budget budget_for_error names from the
+    # first 40 windows' error is where the error of as many windows is down to the tolerance.
+    rng = np.random.default_rng(5)
+    y = -10.0 + 0.8 * rng.normal(size=4000)
+    y[:3] += 6.0  # a transient the MSER rule cuts
+    _, se, d, _ = mser_stats(y[:40])
+    tol = se / 2.0
+    need = budget_for_error(se, tol, 40 - d, d, 20)
+    assert need % 100 == 0 and need > 40 * 20
+    _, se_then, _, _ = mser_stats(y[: need // 20])
+    assert se_then == pytest.approx(tol, rel=0.2)
+    # the point's reason names it: a lightly damped irregular response, 1000 periods
+    cell = CellParams(coupling="paper", theta=1.0, sigma=0.02, gamma_s=1.0, xi=0.015, g1=0.3,
+                      g2=0.3, gamma_r=3.26, modes=5)  # fmt: skip
+    r = simulate_point(cell, SolverSettings(max_periods=1000, window=20))
+    assert r.outcome == "unsettled" and r.transmittance_db_se > 0.1
+    got = re.search(r"standard error .* about ([\d,]+) periods would reach it; raise max_periods",
+                    r.reason)  # fmt: skip
+    assert got is not None, r.reason
+    assert int(got.group(1).replace(",", "")) > 1000
 
 
 # --------------------------------------------------------------------------- linear
