@@ -116,7 +116,7 @@ def simulate_point(
         Polled between batches of periods; when it returns true the point raises
         :class:`PointCancelled`.
     **options
-        Method options: ``event_tol``, ``max_events_per_period`` (``event``).
+        Method options: ``event_tol`` (``event``).
 
     Returns
     -------

@@ -80,14 +80,15 @@ def cell_of(point: Mapping[str, Any]) -> dict[str, Any]:
 
 #: Solver settings added after the store's first points, left out of a document while they
 #: are at their default, so that every key stored before stays the key of the same settings.
-_LATER_SETTINGS = {"max_events_per_period": None}
+_LATER_SETTINGS = ("max_events_per_period",)
+_SOLVER_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SolverSettings)}
 
 
 def solver_document(solver: Mapping[str, Any]) -> dict[str, Any]:
     """Every solver setting of ``solver`` (defaults filled), as hashed and stored."""
     doc = dataclasses.asdict(SolverSettings(**solver))
-    for name, default in _LATER_SETTINGS.items():
-        if doc[name] == default:
+    for name in _LATER_SETTINGS:
+        if doc[name] == _SOLVER_DEFAULTS[name]:
             del doc[name]
     return doc
 

@@ -12,7 +12,7 @@ from worker.solvers.event import monodromy as mono
 from worker.solvers.event import primitives as pm
 from worker.solvers.event.regimes import MAX_COND, prepare_event
 from worker.solvers.event.roots import STACK, STACK_COLS
-from worker.solvers.settings import MAX_EVENTS_PER_PERIOD, SolverSettings, int_in
+from worker.solvers.settings import SolverSettings
 
 DEFAULT_GRID = 64
 DEFAULT_EVENT_TOL = 1e-12
@@ -27,7 +27,8 @@ class EventRun(KernelRun):
 
     ``steps_per_period`` is the sub-grid of event brackets (default 64; it sets the cost, not
     the answer). ``event_tol`` is the event-time tolerance relative to the period (Newton is
-    stopped below it and polished once more). ``max_events_per_period`` ends a chattering run.
+    stopped below it and polished once more). The setting ``max_events_per_period`` (default
+    1000) ends a chattering run.
     """
 
     name = "event"
@@ -39,11 +40,9 @@ class EventRun(KernelRun):
         mono.compile_monodromy()
 
     @classmethod
-    def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL,
-                      max_events_per_period: int | None = None,
-                      **others: object) -> tuple[float, int | None]:  # fmt: skip
-        """Validated ``(event_tol, max_events_per_period)`` (None: the settings' budget);
-        other options are refused."""
+    def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL, **others: object) -> float:
+        """Validated ``event_tol``; other options are refused (the event budget is the solver
+        setting ``max_events_per_period``)."""
         super().check_options(**others)
         if (
             isinstance(event_tol, bool)
@@ -51,16 +50,12 @@ class EventRun(KernelRun):
             or not (0.0 < event_tol < 1e-2)
         ):
             raise ValueError(f"event_tol must be in (0, 0.01), got {event_tol!r}")
-        if max_events_per_period is None:
-            return float(event_tol), None
-        events = int_in("max_events_per_period", max_events_per_period, 1, MAX_EVENTS_PER_PERIOD)
-        return float(event_tol), events
+        return float(event_tol)
 
     def __init__(self, sys_: System, settings: SolverSettings, *args, **options) -> None:
         super().__init__(sys_, settings, *args)
-        event_tol, events = self.check_options(**options)
-        # the option (direct calls) over the setting (studies) over the default
-        self.max_events = events or settings.max_events_per_period or DEFAULT_MAX_EVENTS_PER_PERIOD
+        event_tol = self.check_options(**options)
+        self.max_events = settings.max_events_per_period or DEFAULT_MAX_EVENTS_PER_PERIOD
         p = sys_.params
         N = sys_.ndof
         nzm = 2 * N + 2
