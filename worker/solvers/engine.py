@@ -863,19 +863,36 @@ class _Engine:
         # depends on where a batch starts (batches are cut short by the clock, _pace).
         first = max(2 * w, s.max_periods // 4 - MIN_WINDOWS * w)
         measure_from = -(-first // w) * w
+        # The batch an unpaced run would make ends at `goal`, and it has these `checks`. The
+        # clock may cut it into shorter batches (_pace); between those only the limits and
+        # cancel are looked at, so the work a point reports never depends on the machine's
+        # load. (Up to solver version 21 every cut was a batch end: under load a pending
+        # orbit's reach was seen a few periods sooner, and 23 of 600 points reported fewer
+        # periods when every batch was one period.)
+        goal = 0
+        checks = self.checks
         while self.period < s.max_periods:
-            n = min(w - self.period % w, s.max_periods - self.period, self.stride)
-            if self.pending and self._approaching() is not None:
-                n = min(n, PENDING_BATCH)  # seen soon after the trajectory reaches it
+            if self.period >= goal:
+                n = min(w - self.period % w, s.max_periods - self.period)
+                if self.pending and self._approaching() is not None:
+                    n = min(n, PENDING_BATCH)  # seen soon after the trajectory reaches it
+                goal = self.period + n
+                checks = self.checks
+                if self.period < self.hold_periodic:
+                    checks &= ~ms.CHECK_PERIODIC
+            n = min(goal - self.period, self.stride)
             measure = self.period >= measure_from
             t = time.perf_counter()
-            checks = self.checks
-            if self.period < self.hold_periodic:
-                checks &= ~ms.CHECK_PERIODIC
             done, code, p = self.run.advance(n, measure, checks, self.rows, self.samples)
             self._pace(done, time.perf_counter() - t)
             self.rows[:done, ms.M_MEASURED] = 1.0 if measure else 0.0
             self._absorb(self.rows[:done], self.samples[:done], main=True)
+            if code == ms.END_NONE and self.period < goal:
+                over = self._over_budget()  # cut short by the clock: nothing else to look at
+                if over:
+                    return "failed", over
+                continue
+            goal = 0  # a batch end: the kernel stopped, or the unpaced batch is done
             reached = self._reached(1.0) if self.pending else None
             if reached is None and code == ms.END_PERIODIC and self.pending:
                 # the trajectory repeats by itself: if that is a pending orbit, its extrapolated
