@@ -300,3 +300,42 @@ def test_interleaved_times_two_checkouts_on_the_same_points(tmp_path: Path) -> N
     assert "Points that differ: outcome 0, Γ 0, Floquet multiplier 0" in md
     with pytest.raises(SystemExit):
         il.main([str(tmp_path), "--out", str(tmp_path)])  # not a checkout
+
+
+def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch) -> None:
+    import numpy as np
+
+    from worker.solvers import engine
+
+    bc = _load("batch_cuts")
+    a = {"transmittance_db": 1.0, "wall_s": 1.0, "final_state": np.array([1.0, 2.0])}
+    b = {"transmittance_db": 1.0 + 2.0**-50, "wall_s": 2.0, "final_state": np.array([1.0, 2.0])}
+    assert list(bc.differences(a, b)) == ["transmittance_db"]  # one ulp counts; wall_s never
+    b["final_state"] = np.array([1.0, 2.5])
+    assert list(bc.differences(a, b)) == ["final_state", "transmittance_db"]
+    pace = engine.BATCH_S
+    assert bc.main(["--max", "12", "--out", str(tmp_path)]) == 0  # the real engine: none differ
+    assert pace == engine.BATCH_S  # restored
+    assert "**0 of 12 points differ**" in (tmp_path / "batch_cuts.md").read_text()
+
+    class Result:  # a point whose periods depend on the batches, as in solver version 21
+        def as_dict(self) -> dict:
+            return {"outcome": "periodic", "periods": 4 if engine.BATCH_S else 3}
+
+    monkeypatch.setattr(bc, "simulate_point", lambda p, s: Result())
+    assert bc.main(["--max", "2", "--out", str(tmp_path)]) == 1
+    with open(tmp_path / "batch_cuts.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(r["fields"], r["as_it_comes"], r["one_period_batches"]) for r in rows] == [
+        ("periods", "periods=4", "periods=3")
+    ] * 2
+
+
+def test_batch_cuts_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
+    bc = _load("batch_cuts")
+    for argv in (["--max", "-1"], ["--random", "-2"], ["--random", "3", "--study", "quick"]):
+        with pytest.raises(SystemExit) as exc:
+            bc.main(argv)
+        assert exc.value.code == 2 and "--random and --max must be 0 (off) or more" in (
+            capsys.readouterr().err
+        )
