@@ -40,7 +40,7 @@ import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
 # isort: split
 import numpy as np  # noqa: E402
 
-from benchmarks.irregular_budget import random_points, study_points  # noqa: E402
+from benchmarks.irregular_budget import chosen_points  # noqa: E402
 from benchmarks.point_engine import write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import SOLVER_VERSION, SolverSettings, simulate_point, warm_up  # noqa: E402
@@ -103,13 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max", type=int, default=0, help="run the first N points (0: all)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = ap.parse_args(argv)
-    if args.random < 0 or args.max < 0 or (args.random and args.study):
-        ap.error(f"--random and --max must be 0 (off) or more, and --random not with --study; "
-                 f"got --random {args.random}, --max {args.max}")  # fmt: skip
-    if args.random:
-        points, settings = random_points(args.random, args.seed), SolverSettings()
-    elif args.study:
-        points, settings = study_points(args.study)
+    if args.max < 0:
+        ap.error(f"--max must be 0 (all) or more, got {args.max}")
+    if args.study or args.random:
+        points, settings = chosen_points(ap, args)
     else:
         points, settings = topology_points(), TOPOLOGY_SOLVER
     points = points[: args.max] if args.max else points

@@ -333,9 +333,12 @@ def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch)
 
 def test_batch_cuts_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     bc = _load("batch_cuts")
-    for argv in (["--max", "-1"], ["--random", "-2"], ["--random", "3", "--study", "quick"]):
+    bad = [
+        (["--max", "-1"], "--max must be 0 (all) or more, got -1"),
+        (["--random", "-2"], "--random must be 0 (off) or more"),
+        (["--random", "3", "--study", "quick"], "and not with --study"),
+    ]
+    for argv, said in bad:
         with pytest.raises(SystemExit) as exc:
             bc.main(argv)
-        assert exc.value.code == 2 and "--random and --max must be 0 (off) or more" in (
-            capsys.readouterr().err
-        )
+        assert exc.value.code == 2 and said in capsys.readouterr().err
