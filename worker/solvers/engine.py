@@ -870,7 +870,6 @@ class _Engine:
         # orbit's reach was seen sooner; with every batch one period, 146 of Figure 5's 5,820
         # points reported 1-30 fewer periods, benchmarks/batch_cuts.py.)
         goal = 0
-        checks = self.checks
         while self.period < s.max_periods:
             if self.period >= goal:
                 n = min(w - self.period % w, s.max_periods - self.period)
