@@ -115,15 +115,19 @@ def ceiling(rows: list[dict], costly: tuple[str, ...] = ("irregular", "unsettled
 
 def write_results(out: Path, name: str, lines: list[str], rows: list[dict]) -> None:
     """Write ``<name>.md`` (the lines) and ``<name>.csv`` (the rows) to ``out``; print the
-    table."""
+    table. Without rows no CSV is written, and one an earlier run left is removed (it would
+    pass for this run's)."""
     text = "\n".join(lines) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.md").write_text(text)
+    table = out / f"{name}.csv"
     if rows:
-        with open(out / f"{name}.csv", "w", newline="") as fh:
+        with open(table, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
+    else:
+        table.unlink(missing_ok=True)
     print(text)
 
 

@@ -329,6 +329,9 @@ def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch)
     assert [(r["fields"], r["as_it_comes"], r["one_period_batches"]) for r in rows] == [
         ("periods", "periods=4", "periods=3")
     ] * 2
+    monkeypatch.undo()
+    assert bc.main(["--max", "2", "--out", str(tmp_path)]) == 0
+    assert not (tmp_path / "batch_cuts.csv").exists()  # not the earlier run's table
 
 
 def test_batch_cuts_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
