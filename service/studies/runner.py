@@ -212,6 +212,11 @@ def make_client(
                 # check finds no dask arrays: nothing to import early.)
                 with contextlib.suppress(ImportError):
                     import dask.array  # noqa: F401
+            # The results file's writer (dataset.write_netcdf): a library that cannot be
+            # imported then stops the run before any point is computed, not at its end. (Twice
+            # in CI rehearsals the import at the end failed, "No module named 'certifi'", in an
+            # environment where it is installed: not explained.)
+            import netCDF4  # noqa: F401
         except BaseException:
             with contextlib.suppress(Exception):  # a cluster that failed too: nothing to close
                 starting.result().close()

@@ -319,7 +319,8 @@ from worker.cpu import blas_threads
 
 assert simulate.cache_ready("event")
 client, cluster = make_client(None, 2, method="event")
-dask_array = "dask.array" in sys.modules  # before anything else here could import it
+# before anything else here could import them
+early = ["dask.array" in sys.modules, "netCDF4" in sys.modules]
 try:
     loaded = client.run(lambda: sorted(__import__("worker.simulate").simulate._warm))
     # how each worker process came to be, and what it started with
@@ -337,7 +338,7 @@ try:
     # what xarray's NetCDF writes in this process would lock on
     print(json.dumps([sorted(simulate._warm), sorted(loaded.values()), get_dask_scheduler(),
                       sorted(profiling.values()), sorted(ticks.values()),
-                      sorted(origin.values()), dask_array]))
+                      sorted(origin.values()), early]))
 finally:
     _close(client, cluster)
 """
@@ -361,11 +362,12 @@ def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads
     out = subprocess.run(
         script, cwd=ROOT, env=env, capture_output=True, text=True, check=True, timeout=300
     ).stdout
-    parent, workers, netcdf_lock, profiling, ticks, origin, dask_array = json.loads(
+    parent, workers, netcdf_lock, profiling, ticks, origin, early = json.loads(
         out.strip().splitlines()[-1]
     )
-    # imported while the cluster started (xarray's first variable imports it: not collation)
-    assert dask_array is True
+    # imported while the cluster started (xarray's first variable imports dask.array, the
+    # results file needs netCDF4): not at collation, and a failing import fails before any point
+    assert early == [True, True]
     # Forked from the forkserver (not this process's children) or spawned by this process's
     # nannies; either way with dask's pre-spawn environment (glibc's trim threshold) and one
     # BLAS thread (another count sums in another order).
