@@ -1,6 +1,7 @@
 """How a point ends: the default solver against the paper's scheme on three spectra.
 
     python benchmarks/point_engine.py [--points 40] [--repeat 3] [--out benchmarks/results] [--json]
+                                      [--set KEY=VALUE ...]
 
 Three 40-point spectra, γ_r = 0.3 … 6, σ 0.05, γ_s 1, five modes:
 
@@ -21,7 +22,13 @@ only the irregular and unsettled points cost anything: their periods are set by 
 statistics and the quarter-budget guard against transient chaos, not by the kernel's speed).
 Both methods' kernels are compiled with the same numba options (``measure.KERNEL_JIT``).
 
-Writes ``point_engine.md`` and ``point_engine.csv`` to the output folder.
+``--set KEY=VALUE`` (repeatable) runs a variant of the default in its place, for example
+``--set steps_per_period=32`` (the event solver's sub-grid) or ``--set extrapolate=false``
+(plain iteration to orbits): any ``SolverSettings`` field, the value read as JSON (``true``,
+``32``, ``1e-12``) or else as text.
+
+Writes ``point_engine.md`` and ``point_engine.csv`` to the output folder (a variant:
+``point_engine_<KEY>-<VALUE>….md`` and ``.csv``, so the default's stay).
 """
 
 from __future__ import annotations
@@ -32,10 +39,12 @@ import dataclasses
 import json
 import math
 import os
+import re
 import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # tiny matrices: threads only cost
 
@@ -71,6 +80,35 @@ def paper_settings(gamma_r: float) -> SolverSettings:
         method="euler", lcp="lemke", steps_per_period=spp, max_periods=PAPER_PERIODS,
         window=PAPER_WINDOW, early_stop=False,
     )  # fmt: skip
+
+
+def variant(items: list[str]) -> tuple[SolverSettings, dict[str, Any]]:
+    """``SolverSettings`` with the ``KEY=VALUE`` items over the defaults, and those items
+    (values read as JSON, else as text). A bad item raises ``ValueError`` naming it."""
+    names = [f.name for f in dataclasses.fields(SolverSettings)]
+    given: dict[str, Any] = {}
+    for item in items:
+        key, eq, text = item.partition("=")
+        key = key.strip()
+        if not eq or key not in names:
+            raise ValueError(
+                f"--set {item!r}: expected KEY=VALUE with KEY a solver setting ({', '.join(names)})"
+            )
+        try:
+            given[key] = json.loads(text)
+        except ValueError:
+            given[key] = text
+    try:
+        return SolverSettings(**given), given
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"--set: {e}") from None
+
+
+def results_name(given: dict[str, Any]) -> str:
+    """The results files' name: ``point_engine``, or a variant's ``point_engine_<k>-<v>…``."""
+    parts = [f"{k}-{json.dumps(v) if not isinstance(v, str) else v}" for k, v in given.items()]
+    tail = re.sub(r"[^A-Za-z0-9_.+-]+", "", "_".join(parts))
+    return "point_engine" + (f"_{tail}" if tail else "")
 
 
 def outcome_of(r) -> str:
@@ -131,7 +169,8 @@ def write_results(out: Path, name: str, lines: list[str], rows: list[dict]) -> N
     print(text)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    """Run the benchmark and write its tables."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=40)
     ap.add_argument(
@@ -139,9 +178,23 @@ def main() -> None:
     )
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     ap.add_argument("--json", action="store_true", help="print a JSON summary line")
-    args = ap.parse_args()
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a solver setting of the variant run in place of the default "
+                         "(repeatable)")  # fmt: skip
+    args = ap.parse_args(argv)
+    if args.points < 1 or args.repeat < 1:
+        ap.error(f"--points and --repeat must be at least 1, got {args.points}, {args.repeat}")
+    try:
+        default, given = variant(args.set)
+    except ValueError as e:
+        ap.error(str(e))
+    label = (
+        f"{default.method}, " + ", ".join(f"{k}={v}" for k, v in given.items())
+        if given
+        else f"default ({default.method})"
+    )
+    who = "variant" if given else "default"
     gammas = np.linspace(0.3, 6.0, args.points)
-    default = SolverSettings()
     warm_up(default.method)
     warm_up("euler")
     # compile the Lemke path before timing
@@ -178,6 +231,7 @@ def main() -> None:
         counts[r["outcome"]] = counts.get(r["outcome"], 0) + 1
     summary = dict(
         method=default.method,
+        settings=given,
         points=len(rows),
         default_mean_ms=statistics.fmean(t_def),
         default_median_ms=statistics.median(t_def),
@@ -199,20 +253,20 @@ def main() -> None:
         "",
         "| solver | mean ms/point | median ms/point | worst ms |",
         "|---|---|---|---|",
-        f"| default ({default.method}) | {summary['default_mean_ms']:.2f} | "
+        f"| {label} | {summary['default_mean_ms']:.2f} | "
         f"{summary['default_median_ms']:.2f} | {summary['default_max_ms']:.1f} |",
         f"| paper's scheme (euler + Lemke, Δτ 1e-3, 150 periods) | "
         f"{summary['paper_mean_ms']:.1f} | {summary['paper_median_ms']:.1f} | {max(t_pap):.0f} |",
         "",
-        f"Paper's scheme / default: mean {summary['mean_ratio']:.1f}×, "
+        f"Paper's scheme / {who}: mean {summary['mean_ratio']:.1f}×, "
         f"median {summary['median_ratio']:.1f}× (ratio of the medians; the median of the "
         f"points' own ratios is {summary['median_point_ratio']:.1f}×).",
         "",
-        "Outcomes of the default: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())),
+        f"Outcomes of the {who}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())),
         "",
-        "Where the time goes, by the default's outcome:",
+        f"Where the time goes, by the {who}'s outcome:",
         "",
-        "| outcome | points | default ms | periods | µs per period | paper's scheme ms |",
+        f"| outcome | points | {who} ms | periods | µs per period | paper's scheme ms |",
         "|---|---|---|---|---|---|",
         *(
             f"| {k} | {g['points']} | {g['ms']:.0f} | {g['periods']:,} | "
@@ -225,7 +279,7 @@ def main() -> None:
         f"time). A median ratio of 100× needs the median point within "
         f"{summary['paper_median_ms'] / 100:.2f} ms.",
     ]
-    write_results(args.out, "point_engine", lines, rows)
+    write_results(args.out, results_name(given), lines, rows)
     if args.json:
         print(json.dumps(summary))
 

@@ -118,6 +118,34 @@ def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> 
     assert mod.ceiling(rows[:1]) == float("inf")
 
 
+def test_point_engine_runs_a_variant_of_the_default_under_its_own_name(capsys) -> None:
+    mod = _load("point_engine")
+    settings, given = mod.variant(["steps_per_period=32", "extrapolate=false", "method=event"])
+    assert given == {"steps_per_period": 32, "extrapolate": False, "method": "event"}
+    assert settings == mod.SolverSettings(steps_per_period=32, extrapolate=False)
+    assert mod.variant([]) == (mod.SolverSettings(), {})
+    # the default's files stay; a variant's are named for its settings
+    assert mod.results_name({}) == "point_engine"
+    assert mod.results_name(given) == (
+        "point_engine_steps_per_period-32_extrapolate-false_method-event"
+    )
+    for argv, says in (
+        (["--set", "grid=32"], "--set 'grid=32': expected KEY=VALUE with KEY a solver setting"),
+        (["--set", "steps_per_period"], "expected KEY=VALUE"),
+        (["--set", "steps_per_period=2"], "steps_per_period"),
+        (["--set", "method=rk4"], "method"),
+        (["--points", "0"], "--points and --repeat must be at least 1, got 0, 3"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            mod.main(argv)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert says in err, err
+    # the refused value is named with what is allowed
+    with pytest.raises(ValueError, match=r"steps_per_period.*2"):
+        mod.variant(["steps_per_period=2"])
+
+
 def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
     mod = _load("irregular_budget")
     pts, settings = mod.study_points("quick")
