@@ -104,9 +104,14 @@ def variant(items: list[str]) -> tuple[SolverSettings, dict[str, Any]]:
         raise ValueError(f"--set: {e}") from None
 
 
+def _text(value: Any) -> str:
+    """A setting's value as it was given (``false``, ``32``, ``event``)."""
+    return value if isinstance(value, str) else json.dumps(value)
+
+
 def results_name(given: dict[str, Any]) -> str:
     """The results files' name: ``point_engine``, or a variant's ``point_engine_<k>-<v>…``."""
-    parts = [f"{k}-{json.dumps(v) if not isinstance(v, str) else v}" for k, v in given.items()]
+    parts = [f"{k}-{_text(v)}" for k, v in given.items()]
     tail = re.sub(r"[^A-Za-z0-9_.+-]+", "", "_".join(parts))
     return "point_engine" + (f"_{tail}" if tail else "")
 
@@ -189,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
     except ValueError as e:
         ap.error(str(e))
     label = (
-        f"{default.method}, " + ", ".join(f"{k}={v}" for k, v in given.items())
+        f"{default.method}, " + ", ".join(f"{k}={_text(v)}" for k, v in given.items())
         if given
         else f"default ({default.method})"
     )
