@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         for g in np.linspace(0.3, 6.0, args.points):
             params = CellParams(sigma=0.05, gamma_s=1.0, gamma_r=float(g), modes=modes,
                                 **SPECTRA["A"])  # fmt: skip
-            r, dt = timed(params, settings, args.repeat)
+            r, dt, _ = timed(params, settings, args.repeat)
             rows.append(dict(modes=modes, gamma_r=float(g), outcome=r.outcome,
                              db=r.transmittance_db, periods=r.periods, ms=1e3 * dt))  # fmt: skip
     lines = [

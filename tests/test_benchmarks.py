@@ -105,17 +105,41 @@ def test_cpu_targets_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -
 def test_point_engine_splits_the_time_by_outcome_and_bounds_the_mean_ratio() -> None:
     mod = _load("point_engine")
     rows = [
-        dict(outcome="linear", ms=1.0, periods=10, paper_ms=40.0),
-        dict(outcome="irregular", ms=20.0, periods=260, paper_ms=50.0),
-        dict(outcome="unsettled", ms=30.0, periods=1000, paper_ms=30.0),
-        dict(outcome="linear", ms=3.0, periods=50, paper_ms=80.0),
+        dict(outcome="linear", ms=1.0, kernel_ms=0.5, periods=10, paper_ms=40.0),
+        dict(outcome="irregular", ms=20.0, kernel_ms=16.0, periods=260, paper_ms=50.0),
+        dict(outcome="unsettled", ms=30.0, kernel_ms=24.0, periods=1000, paper_ms=30.0),
+        dict(outcome="linear", ms=3.0, kernel_ms=1.5, periods=50, paper_ms=80.0),
     ]
     groups = mod.by_outcome(rows)
     assert list(groups) == ["irregular", "linear", "unsettled"]
-    assert groups["linear"] == dict(points=2, ms=4.0, periods=60, paper_ms=120.0)
+    assert groups["linear"] == dict(points=2, ms=4.0, kernel_ms=2.0, periods=60, paper_ms=120.0)
     # all of the paper's time (200 ms) over the irregular and unsettled points' (50 ms)
     assert mod.ceiling(rows) == 4.0
     assert mod.ceiling(rows[:1]) == float("inf")
+    # the time loops alone: mean 50 / 10.5 ms, median 45 / (1.5 + 16) / 2 ms
+    mean, median = mod.loops_only(rows)
+    assert mean == pytest.approx(50.0 / 10.5)
+    assert median == pytest.approx(45.0 / 8.75)
+    assert mod.loops_only([dict(rows[0], kernel_ms=0.0)]) == (math.inf, math.inf)
+
+
+def test_point_engine_times_the_time_loops_of_a_point_and_restores_the_method() -> None:
+    mod = _load("point_engine")
+    plain = mod.KernelRun.advance
+    params = mod.cell("A", 1.7615384615384615)  # a periodic point: main and side runs
+    r, wall, loops = mod.timed(params, mod.SolverSettings())
+    assert mod.KernelRun.advance is plain
+    assert r.outcome == "periodic" and r.periods > 0
+    assert 0.0 < loops < wall
+    # a point proven linear at its start runs no time loop at all
+    quiet = dataclasses.replace(params, g1=1e6, g2=1e6)
+    r, wall, loops = mod.timed(quiet, mod.SolverSettings())
+    assert r.outcome == "linear" and r.periods == 0
+    assert loops == 0.0 < wall
+    # the method is restored when the point raises, too
+    with pytest.raises(ValueError), mod.kernel_clock():
+        mod.simulate_point(params, mod.SolverSettings(), history_periods=-1)
+    assert mod.KernelRun.advance is plain
 
 
 def test_point_engine_runs_a_variant_of_the_default_under_its_own_name(capsys) -> None:
@@ -144,6 +168,15 @@ def test_point_engine_runs_a_variant_of_the_default_under_its_own_name(capsys) -
     # the refused value is named with what is allowed
     with pytest.raises(ValueError, match=r"steps_per_period.*2"):
         mod.variant(["steps_per_period=2"])
+
+
+def test_modes_cost_runs_on_point_engines_timer(tmp_path: Path) -> None:
+    # modes_cost.py times its points with point_engine.timed (the result, the wall time and
+    # the time loops' time): a change of that signature must not break it
+    mod = _load("modes_cost")
+    assert mod.main(["--points", "2", "--modes", "5", "--repeat", "1", "--out", str(tmp_path)]) == 0
+    md = (tmp_path / "modes_cost.md").read_text()
+    assert "| 5 |" in md and "linear 2" in md
 
 
 def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
