@@ -142,6 +142,40 @@ def test_point_engine_times_the_time_loops_of_a_point_and_restores_the_method() 
     assert mod.KernelRun.advance is plain
 
 
+def test_point_engine_finds_the_last_impact_before_a_linear_proof() -> None:
+    mod = _load("point_engine")
+    settings = mod.SolverSettings()
+    params = mod.cell("C", 2.784615384615385)  # impacts for a few periods, then proven linear
+    r = mod.simulate_point(params, settings)
+    assert r.outcome == "linear" and r.periods > 1
+    last = mod.last_impact(params, settings, r.periods)
+    assert 1 <= last <= r.periods  # no impact after the proof
+    # the same period seen by the kernel's own counters: impacts in the last period of a run
+    # that long, none in the last period of one a period longer
+    quiet = dataclasses.replace(settings, early_stop=False, linear_tail=False, window=1)
+    n = max(last, 2)
+    hits = mod.simulate_point(params, dataclasses.replace(quiet, max_periods=n))
+    assert sum(hits.impacts_per_period) > 0
+    after = mod.simulate_point(params, dataclasses.replace(quiet, max_periods=n + 1))
+    assert sum(after.impacts_per_period) == 0
+    # proven at the start: nothing to run
+    assert mod.last_impact(dataclasses.replace(params, g1=1e6, g2=1e6), settings, 0) == 0
+    rows = [
+        dict(outcome="linear", periods=0, last_impact=None),
+        dict(outcome="linear", periods=10, last_impact=7),
+        dict(outcome="linear", periods=30, last_impact=0),
+        dict(outcome="irregular", periods=260, last_impact=None),
+    ]
+    assert mod.proof_lags(rows) == [3, 30]
+    summary = dict(linear_at_start=1, linear_simulated=2, proof_lag_median=16.5)
+    (line,) = mod.linear_lines(summary, rows[1:3], [3, 30])
+    assert "1 proven at the start" in line and "1 of these met a stop, last in period 7–7" in line
+    assert "proven 3–30 periods after" in line and "Of their 40 periods, 7 (18 %)" in line
+    assert mod.linear_lines(dict(summary, linear_simulated=0), [], []) == [
+        "Linear points: 1 proven at the start (no period simulated), 0 after simulating."
+    ]
+
+
 def test_point_engine_runs_a_variant_of_the_default_under_its_own_name(capsys) -> None:
     mod = _load("point_engine")
     settings, given = mod.variant(["steps_per_period=32", "extrapolate=false", "method=event"])
