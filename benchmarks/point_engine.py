@@ -199,14 +199,23 @@ def last_impact(params: CellParams, settings: SolverSettings, periods: int) -> i
     return int(hits.max() // period) + 1
 
 
-def proof_lags(rows: list[dict]) -> list[int]:
-    """Periods from the last impact to the linear tail's proof, at the points that ended
-    ``linear`` after simulating (``last_impact`` set)."""
-    return [
-        r["periods"] - r["last_impact"]
-        for r in rows
-        if r["outcome"] == "linear" and r["periods"] > 0 and r.get("last_impact") is not None
-    ]
+def linear_transients(rows: list[dict]) -> dict[str, Any]:
+    """The linear points' transients: how many were proven at the start, how many after
+    simulating (the rows with ``last_impact`` set), their periods, the periods up to their last
+    impacts, and the lags from the last impact (or the start) to the proof."""
+    simulated = [r for r in rows if r.get("last_impact") is not None]
+    hit = [r["last_impact"] for r in simulated if r["last_impact"] > 0]
+    lags = [r["periods"] - r["last_impact"] for r in simulated]
+    return dict(
+        linear_at_start=sum(r["outcome"] == "linear" for r in rows) - len(simulated),
+        linear_simulated=len(simulated),
+        linear_periods=sum(r["periods"] for r in simulated),
+        impacting_periods=sum(hit),
+        last_impacts=(min(hit), max(hit)) if hit else None,
+        impacted=len(hit),
+        proof_lags=(min(lags), max(lags)) if lags else None,
+        proof_lag_median=statistics.median(lags) if lags else None,
+    )
 
 
 def by_outcome(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -244,30 +253,29 @@ def ceiling(rows: list[dict], costly: tuple[str, ...] = ("irregular", "unsettled
     return sum(r["paper_ms"] for r in rows) / spent if spent > 0 else math.inf
 
 
-def linear_lines(summary: dict, simulated: list[dict], lags: list[int]) -> list[str]:
-    """The paragraph on the linear points: proven at the start, or after a transient whose
-    impacts end ``lags`` periods before the proof."""
+def linear_lines(lin: dict[str, Any]) -> list[str]:
+    """The paragraph on the linear points (:func:`linear_transients`)."""
     head = (
-        f"Linear points: {summary['linear_at_start']} proven at the start (no period "
-        f"simulated), {summary['linear_simulated']} after simulating"
+        f"Linear points: {lin['linear_at_start']} proven at the start (no period "
+        f"simulated), {lin['linear_simulated']} after simulating"
     )
-    if not simulated:
+    if not lin["linear_simulated"]:
         return [head + "."]
-    hit = [r["last_impact"] for r in simulated if r["last_impact"] > 0]
-    periods = sum(r["periods"] for r in simulated)
-    impacting = sum(hit)
     met = (
-        f"{len(hit)} of these met a stop, last in period {min(hit)}–{max(hit)}"
-        if hit
+        "{} of these met a stop, last in period {}–{}".format(lin["impacted"], *lin["last_impacts"])
+        if lin["impacted"]
         else "none of these met a stop"
     )
+    periods, impacting = lin["linear_periods"], lin["impacting_periods"]
     return [
-        f"{head}: {met}; the linear tail was proven {min(lags)}–{max(lags)} periods after "
-        f"the last impact (or the start; median {summary['proof_lag_median']:g}). Of their "
-        f"{periods:,} periods, {impacting:,} ({100 * impacting / periods:.0f} %) are the "
-        "transient up to its last impact, which no proof may skip; a sharper proof could save "
-        f"at most the other {periods - impacting:,}."
-    ]
+        "{}: {}; the linear tail was proven {}–{} periods after the last impact (or the "
+        "start; median {:g}). Of their {:,} periods, {:,} ({:.0f} %) are the transient up to "
+        "its last impact, which no proof may skip; a sharper proof could save at most the "
+        "other {:,}.".format(
+            head, met, *lin["proof_lags"], lin["proof_lag_median"], periods, impacting,
+            100 * impacting / periods, periods - impacting,
+        )
+    ]  # fmt: skip
 
 
 def write_results(out: Path, name: str, lines: list[str], rows: list[dict]) -> None:
@@ -373,12 +381,7 @@ def main(argv: list[str] | None = None) -> None:
     summary["kernel_median_ms"] = statistics.median(r["kernel_ms"] for r in rows)
     summary["mean_ratio_loops_only"], summary["median_ratio_loops_only"] = loops_only(rows)
     groups = by_outcome(rows)
-    lags = proof_lags(rows)
-    simulated = [r for r in rows if r["outcome"] == "linear" and r["periods"] > 0]
-    summary["linear_at_start"] = counts.get("linear", 0) - len(simulated)
-    summary["linear_simulated"] = len(simulated)
-    summary["proof_lag_median"] = statistics.median(lags) if lags else None
-    summary["proof_lag_max"] = max(lags) if lags else None
+    summary.update(linear_transients(rows))
     lines = [
         f"Three {args.points}-point spectra (γ_r 0.3–6; A paper θ 0.3 ξ 0.05 gap 0.1, B paper "
         "θ 1 ξ 0.02 gap 0.5, C full θ 0.3 ξ 0.05 gap 0.3), one core, whole `simulate_point` "
@@ -420,7 +423,7 @@ def main(argv: list[str] | None = None) -> None:
         f"time). A median ratio of 100× needs the median point within "
         f"{summary['paper_median_ms'] / 100:.2f} ms.",
         "",
-        *linear_lines(summary, simulated, lags),
+        *linear_lines(summary),
     ]
     write_results(args.out, results_name(given), lines, rows)
     if args.json:

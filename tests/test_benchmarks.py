@@ -166,12 +166,13 @@ def test_point_engine_finds_the_last_impact_before_a_linear_proof() -> None:
         dict(outcome="linear", periods=30, last_impact=0),
         dict(outcome="irregular", periods=260, last_impact=None),
     ]
-    assert mod.proof_lags(rows) == [3, 30]
-    summary = dict(linear_at_start=1, linear_simulated=2, proof_lag_median=16.5)
-    (line,) = mod.linear_lines(summary, rows[1:3], [3, 30])
+    lin = mod.linear_transients(rows)
+    assert lin["proof_lags"] == (3, 30) and lin["proof_lag_median"] == 16.5
+    assert (lin["linear_at_start"], lin["linear_simulated"], lin["impacted"]) == (1, 2, 1)
+    (line,) = mod.linear_lines(lin)
     assert "1 proven at the start" in line and "1 of these met a stop, last in period 7–7" in line
     assert "proven 3–30 periods after" in line and "Of their 40 periods, 7 (18 %)" in line
-    assert mod.linear_lines(dict(summary, linear_simulated=0), [], []) == [
+    assert mod.linear_lines(mod.linear_transients(rows[:1])) == [
         "Linear points: 1 proven at the start (no period simulated), 0 after simulating."
     ]
 
