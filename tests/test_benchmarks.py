@@ -88,6 +88,40 @@ def test_profile_kernels_maps_the_compiled_kernels(tmp_path: Path) -> None:
     assert all(a + s <= b for a, s, b in zip(starts[:-1], sizes[:-1], starts[1:], strict=True))
 
 
+def test_irregular_budget_reruns_only_the_noted_claims_with_a_transient_guard(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    mod = _load("irregular_budget")
+    paper = dict(coupling="paper", modes=5, xi=0.05, sigma=0.05, gamma_s=1.0)
+    settings = mod.SolverSettings()
+    found = []
+    # Figure 5's θ 0.5, gap 0.3, γ_r 4.68 (transient chaos, then the impact-free response)
+    # and θ 0.1, gap 0.1, γ_r 0.48 (irregular, no note)
+    for case, kw in (("dies out", dict(theta=0.5, g1=0.3, g2=0.3, gamma_r=4.68)),
+                     ("no note", dict(theta=0.1, g1=0.1, g2=0.1, gamma_r=0.48))):  # fmt: skip
+        p = mod.CellParams(**paper, **kw)
+        r = mod.simulate_point(p, settings)
+        assert r.outcome == "irregular"
+        found.append((case, kw["gamma_r"], p, r, 0.01))
+    rows = mod.noted_rows(found, settings, 1000)
+    assert [r["case"] for r in rows] == ["dies out"]
+    row = rows[0]
+    assert row["long_outcome"] == "linear" and row["diff_db"] < -5.0
+    assert row["periods"] < row["long_periods"] < 1000
+    args = mod.argparse.Namespace(transient_guard=1000, random=0, study="x", seed=4, points=40)
+    text = "\n".join(mod.noted_lines(rows, 2, 0.02, args, 1.0))
+    assert "--study x --transient-guard 1000" in text
+    assert "**Settled: 1** (1 on the impact-free response, 0 on an orbit)" in text
+    assert "Still irregular: 0" in text and "| dies out | 4.680 |" in text
+    # a guard no later than the points' own earliest claim would change nothing
+    with pytest.raises(SystemExit) as exc:
+        mod.main(["--points", "2", "--transient-guard", "250"])
+    assert exc.value.code == 2
+    assert "--transient-guard must be later than the points' own earliest claim (period 250)" in (
+        capsys.readouterr().err
+    )
+
+
 def test_cpu_targets_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     cpu_targets = _load("cpu_targets")
     for argv, says in (

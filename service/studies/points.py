@@ -80,7 +80,7 @@ def cell_of(point: Mapping[str, Any]) -> dict[str, Any]:
 
 #: Solver settings added after the store's first points, left out of a document while they
 #: are at their default, so that every key stored before stays the key of the same settings.
-_LATER_SETTINGS = ("max_events_per_period",)
+_LATER_SETTINGS = ("max_events_per_period", "transient_guard")
 _SOLVER_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SolverSettings)}
 
 

@@ -14,7 +14,13 @@ from worker.solvers import engine
 from worker.solvers import measure as ms
 from worker.solvers.base import ExactMonodromy
 from worker.solvers.dispatch import RUNS
-from worker.solvers.engine import budget_for_error, few_windows_factor, mser_stats, rre
+from worker.solvers.engine import (
+    TRANSIENT_NOTE,
+    budget_for_error,
+    few_windows_factor,
+    mser_stats,
+    rre,
+)
 from worker.solvers.linear import linear_tail
 
 METHODS = ("event", "exponential", "euler")
@@ -992,6 +998,31 @@ def test_a_budget_too_short_for_the_statistics_is_unsettled_not_irregular(irregu
     assert math.isfinite(r.transmittance_db) and r.periods == 60
 
 
+def test_a_transient_guard_waits_where_chaos_may_die_out_and_moves_no_other_claim():
+    # Figure 5's θ 0.5, gap 0.3, γ_r 4.68: chaos for ~340 periods, then the impact-free
+    # response; claimed irregular at 260 periods, 7.2 dB above where the point ends
+    p = cell(theta=0.5, g1=0.3, g2=0.3, gamma_r=4.68, coupling="paper", modes=5)
+    lin = steady_state(assemble(p)).transmittance_db
+    plain = simulate_point(p, SolverSettings())
+    assert plain.outcome == "irregular" and TRANSIENT_NOTE in plain.reason
+    assert plain.transmittance_db > lin + 5.0
+    guarded = simulate_point(p, SolverSettings(transient_guard=1000))
+    assert guarded.outcome == "linear" and guarded.transmittance_db == lin
+    assert plain.periods < guarded.periods < 1000
+    # an irregular claim without the note (the impact-free response would hit a stop) is
+    # not moved: the same record to the bit
+    q = cell(theta=0.1, gamma_r=0.48, coupling="paper", modes=5)
+    a = simulate_point(q, SolverSettings())
+    b = simulate_point(q, SolverSettings(transient_guard=1000))
+    assert a.outcome == "irregular" and TRANSIENT_NOTE not in a.reason
+    assert (b.outcome, b.periods, b.transmittance_db, b.transmittance_db_se) == (
+        a.outcome,
+        a.periods,
+        a.transmittance_db,
+        a.transmittance_db_se,
+    )
+
+
 def test_chaos_beside_an_admissible_linear_response_is_labelled_as_possibly_transient():
     # θ 1, ξ 0.02, gap 0.5, γ_r 5.25: impacts die out after hundreds to thousands of periods
     # depending on round-off; whatever a method reports, it is never a bare irregular number
@@ -1003,7 +1034,7 @@ def test_chaos_beside_an_admissible_linear_response_is_labelled_as_possibly_tran
             assert r.transmittance_db == lin
         else:
             assert r.outcome in ("irregular", "unsettled")
-            assert "may be transient" in r.reason or "ran out" in r.reason
+            assert TRANSIENT_NOTE in r.reason or "ran out" in r.reason
 
 
 # --------------------------------------------------------------------------- failed

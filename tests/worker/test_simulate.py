@@ -216,6 +216,11 @@ def test_chunk_reports_bad_points_instead_of_raising():
             {"method": "euler", "max_events_per_period": 10},
             "max_events_per_period applies to method 'event' only, got method 'euler'",
         ),
+        ({"transient_guard": -1}, "transient_guard must be an integer in 0"),
+        (
+            {"max_periods": 400, "transient_guard": 401},
+            r"transient_guard must be <= max_periods \(400\).*got 401",
+        ),
     ],
 )
 def test_bad_solver_settings(kw, message):

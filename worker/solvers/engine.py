@@ -78,6 +78,7 @@ __all__ = [
     "DIVERGENCE_FACTOR",
     "compile_helpers",
     "MIN_WINDOWS",
+    "TRANSIENT_NOTE",
     "budget_for_error",
     "few_windows_factor",
     "linear_reference_db",
@@ -87,6 +88,9 @@ __all__ = [
 ]
 
 DIVERGENCE_FACTOR = 1e6  # |x|∞ beyond this times the natural scale is divergence
+# The end of an irregular point's reason where the impact-free response is admissible too
+# (``_Engine._coexistence_note``): how a reader, a benchmark or a test tells such claims apart.
+TRANSIENT_NOTE = "this irregular motion may be transient"
 MIN_WINDOWS = 8  # windows of statistics before an irregular response may be reported
 MAX_TREND = 3.0  # t-statistic of the windows' trend above which Γ is still drifting
 RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
@@ -1366,6 +1370,9 @@ class _Engine:
         # orbit: an irregular response is claimed only after a quarter of the budget.
         if len(win) < MIN_WINDOWS or self.period < self.s.max_periods // 4:
             return False
+        guard = self.s.transient_guard
+        if guard is not None and self.period < guard and self._coexistence_note():
+            return False  # the user's longer guard, where the chaos may die out
         if not self._impacts_continue():
             return False
         return self._stats_converged()
@@ -1402,7 +1409,7 @@ class _Engine:
             return ""
         return (
             f"the impact-free response (Γ = {ss.transmittance_db:.4g} dB) is admissible here "
-            "too: this irregular motion may be transient"
+            f"too: {TRANSIENT_NOTE}"
         )
 
     def _impacts_continue(self) -> bool:

@@ -123,6 +123,13 @@ class SolverSettings:
         ``event`` only: the events (impacts, releases) one period may hold before the run ends
         ``failed`` as chattering (default 1000). Large-θ cells at low γ_r can have hundreds of
         real impacts a period; raising it lets them run, at about 10 µs an event.
+    transient_guard : int or None
+        The earliest period at which an irregular response may be claimed where the
+        impact-free response is admissible too (its reason then says the motion may be
+        transient: such chaos can die out after hundreds of periods). Default: a quarter of
+        ``max_periods``, as for every irregular claim; at most ``max_periods`` (then such a
+        claim waits for the budget's end). It moves no other claim, so it costs far less
+        than a longer budget for all (docs/accuracy.md, "Irregular points").
     """
 
     method: str = field(default=DEFAULT_METHOD, metadata={"choices": METHODS})
@@ -145,6 +152,9 @@ class SolverSettings:
         default=None,
         metadata={"integer": True, "ge": 1, "le": MAX_EVENTS_PER_PERIOD, "optional": True},
     )
+    transient_guard: int | None = field(
+        default=None, metadata={"integer": True, "ge": 0, "le": 10**7, "optional": True}
+    )
 
     def __post_init__(self) -> None:
         check_fields(self)  # every field's range is its metadata above
@@ -156,6 +166,11 @@ class SolverSettings:
             # the time-stepping methods count no events: a budget there would do nothing
             raise ValueError(
                 f"max_events_per_period applies to method 'event' only, got method {self.method!r}"
+            )
+        if self.transient_guard is not None and self.transient_guard > self.max_periods:
+            raise ValueError(
+                f"transient_guard must be <= max_periods ({self.max_periods}): a claim cannot "
+                f"wait past the budget; got {self.transient_guard}"
             )
 
 

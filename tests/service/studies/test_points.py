@@ -69,21 +69,25 @@ def test_the_key_is_what_determines_the_point() -> None:
     assert point_key(p, solver) == base and len(base) == pts.KEY_LENGTH
 
 
-def test_a_setting_added_later_keeps_the_keys_stored_before_it() -> None:
-    # max_events_per_period came after the store's first points: at its default (None) it is
-    # left out of the hashed document, so the keys of every earlier study stay valid; given,
-    # it is a setting like any other.
+@pytest.mark.parametrize(
+    ("name", "value"), [("max_events_per_period", 5000), ("transient_guard", 40)]
+)
+def test_a_setting_added_later_keeps_the_keys_stored_before_it(name: str, value: int) -> None:
+    # max_events_per_period and transient_guard came after the store's first points: at their
+    # default (None) they are left out of the hashed document, so the keys of every earlier
+    # study stay valid; given, each is a setting like any other.
     a = study(tiny_study("a", num=4))
     doc = pts.solver_document(a.solver.settings().__dict__)
-    assert "max_events_per_period" not in doc and "steps_per_period" in doc
+    assert name not in doc and "steps_per_period" in doc
     assert set(doc) == {f.name for f in dataclasses.fields(SolverSettings)} - {
-        "max_events_per_period"
+        "max_events_per_period",
+        "transient_guard",
     }
     given = tiny_study("a", num=4)
-    given["solver"]["max_events_per_period"] = 5000
+    given["solver"][name] = value
     b = study(given)
     assert b.id != a.id
-    assert pts.solver_document(b.solver.settings().__dict__)["max_events_per_period"] == 5000
+    assert pts.solver_document(b.solver.settings().__dict__)[name] == value
     assert not set(study_keys(b)) & set(study_keys(a))
 
 

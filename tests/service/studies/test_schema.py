@@ -233,6 +233,13 @@ def test_new_solver_settings_are_settable_and_validated() -> None:
             "solver",
             "max_events_per_period applies to method 'event' only, got method 'euler'",
         ),
+        ({"transient_guard": -5}, "solver.transient_guard", "integer in 0"),
+        (
+            {"transient_guard": 2000, "max_periods": 1000},
+            "solver",
+            "transient_guard must be <= max_periods (1000): a claim cannot wait past the budget; "
+            "got 2000",
+        ),
     ]:
         bad = _base()
         bad["solver"] = solver
