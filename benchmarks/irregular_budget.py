@@ -219,14 +219,21 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for r in rows:
         lines.append(
-            f"| {r['case']} | {r['gamma_r']:.3f} | {r['db']:.3f} | {r['se']:.3g} | "
-            f"{r['periods']} | {r['long_outcome']} | "
-            + ("–" if r["long_db"] is None else f"{r['long_db']:.3f}")
+            _both_runs(r)
             + f" | {r['long_se'] if r['long_se'] is None else format(r['long_se'], '.3g')} | "
             f"{r['long_periods']} | " + ("–" if r["z"] is None else f"{r['z']:.2f}") + " |"
         )
     write_results(args.out, results_name("irregular_budget", args), lines, rows)
     return 0
+
+
+def _both_runs(r: dict[str, Any]) -> str:
+    """A table row's first cells: the point, its first run, the second run's outcome and Γ."""
+    return (
+        f"| {r['case']} | {r['gamma_r']:.3f} | {r['db']:.3f} | {r['se']:.3g} | "
+        f"{r['periods']} | {r['long_outcome']} | "
+        + ("–" if r["long_db"] is None else f"{r['long_db']:.3f}")
+    )
 
 
 def selection(args: argparse.Namespace) -> tuple[str, str]:
@@ -333,9 +340,7 @@ def noted_lines(
     ]
     for r in rows:
         lines.append(
-            f"| {r['case']} | {r['gamma_r']:.3f} | {r['db']:.3f} | {r['se']:.3g} | "
-            f"{r['periods']} | {r['long_outcome']} | "
-            + ("–" if r["long_db"] is None else f"{r['long_db']:.3f}")
+            _both_runs(r)
             + f" | {r['long_periods']} | "
             + ("–" if r["diff_db"] is None else f"{r['diff_db']:+.3f}")
             + " |"
