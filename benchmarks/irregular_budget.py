@@ -112,6 +112,15 @@ def random_points(n: int, seed: int) -> list[tuple[str, float, CellParams]]:
     return pts
 
 
+def selection_options(ap: argparse.ArgumentParser) -> None:
+    """The options :func:`chosen_points` reads: ``--study``, ``--points``, ``--random``,
+    ``--seed`` (the benchmarks that take a study's, the spectra's or random points)."""
+    ap.add_argument("--study", help="a shipped grid study instead of the three spectra")
+    ap.add_argument("--points", type=int, default=40, help="points per spectrum (no --study)")
+    ap.add_argument("--random", type=int, default=0, help="N random cells instead (--seed)")
+    ap.add_argument("--seed", type=int, default=4, help="the random cells' seed")
+
+
 def chosen_points(
     ap: argparse.ArgumentParser, args: argparse.Namespace
 ) -> tuple[list[tuple[str, float, CellParams]], SolverSettings]:
@@ -128,12 +137,9 @@ def chosen_points(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--points", type=int, default=40, help="points per spectrum")
+    selection_options(ap)
     ap.add_argument("--max", type=int, default=25, help="irregular points to re-run")
     ap.add_argument("--factor", type=int, default=10, help="budget multiple of the re-run")
-    ap.add_argument("--study", help="a shipped grid study instead of the three spectra")
-    ap.add_argument("--random", type=int, default=0, help="N random cells instead (--seed)")
-    ap.add_argument("--seed", type=int, default=4, help="the random cells' seed")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     ap.add_argument(
         "--transient-guard", type=int, default=0, metavar="G",

@@ -44,7 +44,7 @@ import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
 # isort: split
 import numpy as np  # noqa: E402
 
-from benchmarks.irregular_budget import chosen_points  # noqa: E402
+from benchmarks.irregular_budget import chosen_points, selection_options  # noqa: E402
 from benchmarks.point_engine import write_results  # noqa: E402
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import PointResult, SolverSettings, simulate_point, warm_up  # noqa: E402
@@ -106,10 +106,7 @@ def audit(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--study", help="a shipped grid study instead of the three spectra")
-    ap.add_argument("--points", type=int, default=40, help="points per spectrum (no --study)")
-    ap.add_argument("--random", type=int, default=0, help="N random cells instead (--seed)")
-    ap.add_argument("--seed", type=int, default=4, help="the random cells' seed")
+    selection_options(ap)
     ap.add_argument("--max", type=int, default=0, help="periodic points to check (0: all)")
     ap.add_argument("--plain", action="store_true", help="audit plain iteration itself")
     ap.add_argument("--tol", type=float, default=1e-12, help="the reference's periodicity_tol")

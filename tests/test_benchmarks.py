@@ -122,6 +122,44 @@ def test_irregular_budget_reruns_only_the_noted_claims_with_a_transient_guard(
     )
 
 
+def test_step_check_estimates_exponentials_error_and_finds_moved_bifurcations(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    mod = _load("step_check")
+    points, settings = _load("irregular_budget").study_points("nightly/full-gaps")
+    # θ 0.2, gap 0.1, γ_r 5: period 3 at both steps, 0.0025 dB from event's Γ; θ 0.5, gap
+    # 0.3, γ_r 1.7: period 2 at the default steps, period 1 at twice them (and in event)
+    want = {("theta 0.2, g1 0.1, g2 0.1", 5.0), ("theta 0.5, g1 0.3, g2 0.3", 1.7)}
+    chosen = [(c, g, p) for c, g, p in points if (c, round(g, 6)) in want]
+    assert len(chosen) == 2 and settings.method == "exponential"
+    rows, first_s = mod.check(chosen, settings)
+    by = {r["gamma_r"]: r for r in rows}
+    kept, moved = by[5.0], by[1.7]
+    assert kept["period"] == kept["finer_period"] == 3
+    event = mod.simulate_point(chosen[[g for _, g, _ in chosen].index(5.0)][2],
+                               mod.SolverSettings()).transmittance_db  # fmt: skip
+    # the estimate is the reported Γ's error within a quarter (0.0020 against 0.0025 dB)
+    assert abs(kept["estimate_db"] - abs(kept["db"] - event)) < 0.25 * abs(kept["db"] - event)
+    assert 1e-3 < kept["estimate_db"] < 1e-2
+    assert (moved["period"], moved["finer_period"], moved["estimate_db"]) == (2, 1, None)
+    args = mod.argparse.Namespace(
+        study="nightly/full-gaps", random=0, seed=4, points=40, method=None, tol=1e-3
+    )
+    text = "\n".join(mod.lines_of(rows, 2, first_s, args, 1.0))
+    assert "--study nightly/full-gaps --tol 0.001" in text
+    assert "**Above 0.001 dB: 1** of 1" in text and "twice the steps: 1**" in text
+    # only exponential: a study of another method, or another method asked for, is refused
+    for argv, says in (
+        (["--study", "nightly/euler-full"], "the study runs method 'euler'"),
+        (["--points", "2", "--method", "event"], "--method must be exponential"),
+        (["--study", "nightly/full-gaps", "--method", "exponential"], "leave it out"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            mod.main(argv)
+        assert exc.value.code == 2
+        assert says in capsys.readouterr().err
+
+
 def test_cpu_targets_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     cpu_targets = _load("cpu_targets")
     for argv, says in (
