@@ -312,11 +312,8 @@ def noted_lines(
     rerun_s = sum(r["long_s"] for r in rows)
     own_s = sum(r["s"] for r in rows)
     share = 100.0 * (rerun_s - own_s) / first_s if first_s > 0 else math.nan
-    span = (
-        f"{min(r['long_periods'] for r in settled)}–{max(r['long_periods'] for r in settled)}"
-        if settled
-        else "–"
-    )
+    ends = sorted({r["long_periods"] for r in settled})
+    span = "–" if not ends else f"{ends[0]}" if len(ends) == 1 else f"{ends[0]}–{ends[-1]}"
     lines = [
         "# Irregular claims that may be transient, run again with a transient guard",
         "",
