@@ -1371,7 +1371,7 @@ class _Engine:
         if len(win) < MIN_WINDOWS or self.period < self.s.max_periods // 4:
             return False
         guard = self.s.transient_guard
-        if guard is not None and self.period < guard and self._coexistence_note():
+        if guard is not None and self.period < guard and self._linear_admissible():
             return False  # the user's longer guard, where the chaos may die out
         if not self._impacts_continue():
             return False
@@ -1401,11 +1401,17 @@ class _Engine:
         p = p or int(_shrinking_p(self.history, self.nhistory, ms.MAX_PERIOD))
         return p or int(_creeping_p(self.history, self.nhistory, ms.MAX_PERIOD))
 
+    def _linear_admissible(self) -> bool:
+        """Whether the impact-free steady state is admissible too (damped, and its tip clear
+        of the stops): irregular motion here may be transient chaos that dies out into it."""
+        tail = self.tail
+        return tail.steady is not None and tail.damped and tail.amp < tail.gate
+
     def _coexistence_note(self) -> str:
         """Irregular motion where the impact-free steady state is also admissible may be
         transient chaos that a longer run would see die out: say so."""
         ss = self.tail.steady
-        if ss is None or not self.tail.damped or self.tail.amp >= self.tail.gate:
+        if ss is None or not self._linear_admissible():
             return ""
         return (
             f"the impact-free response (Γ = {ss.transmittance_db:.4g} dB) is admissible here "
