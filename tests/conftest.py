@@ -21,6 +21,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 # Before numpy loads OpenBLAS, like the thread count: the same BLAS kernels and compiled code on
 # every x86-64 machine, so the numbers the tests check do not depend on the CPU (worker/cpu.py).
 import worker  # noqa: E402, F401
+import numpy  # noqa: E402, F401  (loaded pinned here: tests/worker/test_cpu.py asks its OpenBLAS)
 
 # --------------------------------------------------------------------------- test tiers
 

@@ -103,3 +103,21 @@ def test_the_cycle_finder_finds_a_cycle():
     g.add_import(importer="worker.c", imported="worker.a")
     g.add_import(importer="service.d", imported="worker.a")
     assert _cycles(g) == [["worker.a", "worker.b", "worker.c"]]
+
+
+def test_importing_the_client_loads_no_simulator():
+    # What a process that only talks to a service pays: the client, httpx, xarray, numpy, and
+    # the CPU pin (``worker/__init__`` and ``worker/cpu``, standard library only, so a process
+    # that goes on to compute is pinned), never numba or the simulator's modules.
+    import subprocess
+
+    code = (
+        "import sys, service.client; "
+        "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in "
+        "('numba', 'llvmlite', 'scipy', 'worker', 'dask', 'matplotlib'))))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert set(out.stdout.split()) == {"worker", "worker.cpu"}, out.stdout

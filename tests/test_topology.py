@@ -43,11 +43,13 @@ START_TIMEOUT = 60.0  # a loaded 2-core machine imports dask and numba slowly
 class Proc:
     """A subprocess in its own process group (``dask worker`` forks a worker under its nanny)."""
 
-    def __init__(self, name: str, argv: list[str], logdir: Path) -> None:
+    def __init__(
+        self, name: str, argv: list[str], logdir: Path, env: dict[str, str] | None = None
+    ) -> None:
         self.name = name
         self.logpath = logdir / f"{name}.log"
         self._log = open(self.logpath, "wb")  # noqa: SIM115 - closed in stop()
-        env = {**_clean_env(), "PYTHONUNBUFFERED": "1"}
+        env = {**_clean_env(), "PYTHONUNBUFFERED": "1", **(env or {})}
         self.proc = subprocess.Popen(
             argv, cwd=ROOT, env=env, stdout=self._log, stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL, start_new_session=True,
@@ -195,7 +197,7 @@ class Topology:
 def _clean_env() -> dict[str, str]:
     # No IMPACTCELL_* setting of the caller's (token, database, scheduler) leaks in, nor the
     # CPU pin the test process inherited: each process must pin it itself, as in compose.
-    pins = (cpu.BLAS_ENV, cpu.NUMBA_ENV, cpu.NUMPY_ENV)
+    pins = (cpu.BLAS_ENV, cpu.NUMBA_ENV, cpu.FEATURES_ENV, cpu.NUMPY_ENV)
     return {
         k: v for k, v in os.environ.items() if not k.startswith("IMPACTCELL_") and k not in pins
     }
@@ -317,6 +319,53 @@ def test_study_through_the_api_matches_the_embedded_run(
     if cpu.pinnable():
         assert set(topology.dask.run(cpu.kernels).values()) == {cpu.BLAS_CORE}
         assert set(topology.dask.run(cpu.compiled_for).values()) == {cpu.NUMBA_CPU}
+    # ... and every worker computes with this process's whole fingerprint, which the dataset
+    # records.
+    assert list(topology.dask.run(cpu.fingerprint).values()) == [cpu.fingerprint()] * WORKERS
+    for key, value in cpu.fingerprint().items():
+        assert ds.attrs[key] == value, key
+
+
+@pytest.mark.skipif(not cpu.pinnable(), reason="the CPU pin is for x86-64 with AVX2 and FMA")
+def test_a_worker_that_would_compute_other_bits_is_refused(tmp_path: Path) -> None:
+    # A worker started with another numba target than the service's (here: explicit features,
+    # on any CPU; a bare `dask worker` on an AVX-512 machine differs in its BLAS kernels and
+    # numpy's dispatch): the service's runner refuses the cluster, naming the worker and the
+    # difference, and a task sent to it computes nothing.
+    from dask.distributed import Client as DaskClient
+
+    from service.studies.runner import make_client
+    from service.studies.tasks import chunk_task
+
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [
+        Proc("scheduler", [sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1",
+                           "--port", str(port), "--dashboard-address", ":0"], tmp_path),
+        Proc("odd-worker", [sys.executable, "-m", "dask", "worker", address, "--nthreads", "1",
+                            "--no-dashboard", "--preload-nanny", "worker"], tmp_path,
+             env={cpu.FEATURES_ENV: "+avx2"}),
+    ]  # fmt: skip
+    try:
+        with DaskClient(address, timeout="30s") as dask:
+            dask.wait_for_workers(1, timeout=START_TIMEOUT)
+            with pytest.raises(cpu.TargetMismatch) as refused:
+                make_client(address, None)
+            text = str(refused.value)
+            assert "1 of 1 workers compute otherwise" in text
+            assert f"numba_cpu haswell+avx2, not {cpu.NUMBA_CPU}" in text
+            assert "--preload-nanny worker" in text
+            # A task that reaches such a worker anyway (one that joined later) is refused there.
+            fut = dask.submit(chunk_task, [], {}, {}, "no-event", False, cpu.fingerprint(),
+                              pure=False)  # fmt: skip
+            with pytest.raises(cpu.TargetMismatch, match="this worker computes otherwise"):
+                fut.result(timeout=60)
+    except BaseException:
+        print("\n".join(p.tail() for p in procs))
+        raise
+    finally:
+        for p in reversed(procs):
+            p.stop()
 
 
 # Slower per point than FAST_SOLVER (which does 600 points in well under a second on two

@@ -2,13 +2,19 @@
 
 Every point is first compared by its ``outcome`` class: linear or periodic, irregular,
 unsettled, failed. A point whose class changed (periodic <-> irregular, anything <-> failed,
-irregular <-> unsettled, ...) is a regression, reported with its old and new outcome. Points
-unsettled in both runs are not compared (their numbers are not proven). At points linear or
-periodic in both runs each variable is held to its tolerance
+irregular <-> unsettled, ...) is a regression, reported with its old and new outcome, unless
+the point is *sensitive* in either run: an irregular claim that may be transient chaos (the
+impact-free response is admissible too, ``TRANSIENT_NOTE`` in its reason) or an orbit whose
+Floquet multiplier is at least ``SENSITIVE_MULTIPLIER`` (next to a bifurcation). Where such a
+point ends depends on the last bits of its trajectory, so its change is listed as sensitive,
+not counted as a regression. Points unsettled in both runs are not compared (their numbers are
+not proven). At points linear or periodic in both runs each variable is held to its tolerance
 (:class:`~service.regression.spec.Tolerance`).
 
-Irregular points are compared by distribution, because their values depend on every bit of a
-chaotic trajectory. ``median_shift`` bounds the median of the paired differences (new - old at
+Irregular points are compared point by point within their error bars: a variable with a
+standard error (``transmittance_db_se``) moved if ``|new - old| > error_bars·√(se_old² +
+se_new²)`` (default 4 combined standard errors). They are also compared by distribution.
+``median_shift`` bounds the median of the paired differences (new - old at
 points irregular in both runs; robust with few points and insensitive to how Γ varies along
 the grid); ``quantile_shift`` bounds the shift of the quantiles of each run's values at those
 points; ``ks_pvalue`` (optional) fails when a two-sample Kolmogorov-Smirnov test gives a smaller
@@ -33,9 +39,12 @@ import xarray as xr
 from service.regression.spec import IrregularCheck, RegressionSpec, Tolerance
 from service.studies.dataset import json_number, summarize
 from service.studies.variables import OUTCOMES, outcome_names
+from worker.cpu import FINGERPRINT_KEYS
 from worker.simulate import SOLVER_VERSION
+from worker.solvers.engine import TRANSIENT_NOTE
 
 __all__ = [
+    "SENSITIVE_MULTIPLIER",
     "Change",
     "DistributionCheck",
     "StudyComparison",
@@ -48,6 +57,8 @@ __all__ = [
 _STEADY = ("linear", "periodic")
 _CLASS = {k: ("linear/periodic" if k in _STEADY else k) for k in OUTCOMES}
 _CLASSES_TEXT = "same outcome class (linear/periodic, irregular, unsettled, failed)"
+# An orbit this close to losing its stability ends otherwise on a change in its last bits.
+SENSITIVE_MULTIPLIER = 0.98
 
 
 # --------------------------------------------------------------------------- comparison results
@@ -367,9 +378,9 @@ def compare(
             out.notes.append(f"definition differs from the baseline's in {', '.join(differ)}")
         if one_sided:  # e.g. a solver setting added since, at its default
             out.notes.append(f"definition keys in only one of the runs: {', '.join(one_sided)}")
-    # blas_kernels, numba_cpu: another CPU target rounds differently; grazing or chaotic points
-    # can then end otherwise (worker/cpu.py), which this note explains.
-    for key in ("solver_version", "impactcell_version", "git_commit", "blas_kernels", "numba_cpu"):
+    # The CPU target and library stack (worker.cpu.fingerprint): another rounds differently, and
+    # grazing or chaotic points can then end otherwise, which this note explains.
+    for key in ("solver_version", "impactcell_version", "git_commit", *FINGERPRINT_KEYS):
         a, b = baseline.attrs.get(key), new.attrs.get(key)
         if a is not None and b is not None and a != b:
             out.notes.append(f"{key}: baseline {a}, new {b}")
@@ -383,12 +394,22 @@ def compare(
     grid = new["failed"]
     reason = new["reason"].values if "reason" in new else None
 
+    s_new, s_old = _sensitive(new, dims), _sensitive(baseline, dims)
+    sensitive = np.where(s_new != "", s_new, s_old)
     for i in np.flatnonzero(c_new != c_old):
         note = str(reason.flat[i]) if reason is not None else ""
+        why = sensitive.flat[i]
         out.changes.append(
             Change("outcome", "outcome", _coords_at(grid, int(i)), str(o_old.flat[i]),
-                   str(o_new.flat[i]), None, _CLASSES_TEXT, note=note)
+                   str(o_new.flat[i]), None, _CLASSES_TEXT, regression=not why,
+                   note=f"sensitive: {why}; {note}" if why else note)
         )  # fmt: skip
+    n_sensitive = sum(1 for c in out.changes if c.kind == "outcome" and not c.regression)
+    if n_sensitive:
+        out.notes.append(
+            f"{n_sensitive} outcome changes at sensitive points (may be transient chaos, or "
+            f"Floquet multiplier >= {SENSITIVE_MULTIPLIER:g}): listed, not regressions"
+        )
     unsettled = int(np.sum((o_new == "unsettled") & (o_old == "unsettled")))
     if unsettled:
         out.notes.append(f"{unsettled} points unsettled in both runs (not compared)")
@@ -427,12 +448,62 @@ def compare(
             continue
         a, old_v = _aligned(new, baseline, var)
         new_v = np.asarray(a.values, dtype=np.float64)
+        if chk.error_bars is not None:
+            _within_error_bars(
+                out, var, chk.error_bars, new, baseline, _on(irr_old & irr_new, a, dims)
+            )
         out.distribution += _distribution(
             var, chk, old_v, new_v, _on(irr_old, a, dims), _on(irr_new, a, dims)
         )
 
     out.status = "failed" if out.has_regressions() else "passed"
     return out
+
+
+def _sensitive(ds: xr.Dataset, dims: tuple[str, ...]) -> np.ndarray:
+    """Why each point of ``ds`` is sensitive ("" where it is not): an irregular claim that may be
+    transient chaos, or an orbit next to a bifurcation (see the module doc)."""
+    shape = tuple(ds.sizes[d] for d in dims)
+    why = np.full(shape, "", dtype=object)
+    if "floquet_multiplier" in ds and set(ds["floquet_multiplier"].dims) == set(dims):
+        rho = np.asarray(ds["floquet_multiplier"].transpose(*dims).values, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            near = np.isfinite(rho) & (rho >= SENSITIVE_MULTIPLIER)
+        why[near] = "Floquet multiplier near 1"
+    if "reason" in ds and set(ds["reason"].dims) == set(dims):
+        text = ds["reason"].transpose(*dims).values.astype(str)
+        why[np.char.find(text, TRANSIENT_NOTE) >= 0] = "may be transient chaos"
+    return why
+
+
+def _within_error_bars(
+    out: StudyComparison,
+    var: str,
+    z: float,
+    new: xr.Dataset,
+    baseline: xr.Dataset,
+    both: np.ndarray,
+) -> None:
+    """Points irregular in both runs whose ``var`` moved by more than ``z`` combined standard
+    errors (``<var>_se``) go to ``out.changes``; a point without an error bar is not compared."""
+    se = f"{var}_se"
+    if se not in new or se not in baseline:
+        out.notes.append(f"{var}: not compared within error bars ({se} not in both datasets)")
+        return
+    a, old_v = _aligned(new, baseline, var)
+    new_v = np.asarray(a.values, dtype=np.float64)
+    _, se_old = _aligned(new, baseline, se)
+    se_new = np.asarray(new[se].transpose(*a.dims).values, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        limit = z * np.hypot(se_old, se_new)
+        moved = both & np.isfinite(limit) & (np.abs(new_v - old_v) > limit)
+    for i in np.flatnonzero(moved):
+        o, n = old_v.flat[i], new_v.flat[i]
+        out.changes.append(
+            Change("moved", var, _coords_at(a, int(i)), json_number(o), json_number(n),
+                   json_number(abs(n - o)),
+                   f"within {z:g} combined standard errors ({limit.flat[i]:.3g})")
+        )  # fmt: skip
 
 
 def _distribution(

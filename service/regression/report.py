@@ -125,8 +125,9 @@ class NightlyReport:
                 shown[s.study] = shown.get(s.study, 0) + 1
                 if shown[s.study] > self.max_rows:
                     continue
+                kind = ch.kind if ch.regression else f"{ch.kind} (sensitive, not a regression)"
                 lines.append(
-                    f"| {s.study} | {_coords_text(ch.coords)} | {ch.variable} | {ch.kind} | "
+                    f"| {s.study} | {_coords_text(ch.coords)} | {ch.variable} | {kind} | "
                     f"{_fmt(ch.old)} | {_fmt(ch.new)} | "
                     f"{'-' if ch.kind == 'outcome' else _fmt(ch.delta, 3)} | {ch.tolerance} |"
                 )

@@ -46,7 +46,8 @@ DISTRIBUTABLE = tuple(k for k, v in VARIABLES.items() if v.group and v.kind == "
 # Variables of solver version 1 that are gone, and what replaced them (for the error message).
 _RENAMED = {"theta_eff_mean": "theta_eff_slope", "converged": "outcome"}
 # Always kept in a baseline: how every point ended (and, for older readers, failed/period).
-_ALWAYS = ("outcome", "response_period", "failed")
+# ``reason`` tells a sensitive point (one that may be transient chaos) from a regression.
+_ALWAYS = ("outcome", "response_period", "failed", "reason")
 
 
 def _replaced(name: str) -> str:
@@ -95,6 +96,9 @@ class IrregularCheck(StrictModel):
     quantiles: list[Real] = Field(default_factory=lambda: [0.25, 0.5, 0.75], min_length=1)
     ks_pvalue: Real | None = Field(None, gt=0, lt=1)
     min_points: Integer = Field(5, ge=1)
+    # Point by point where the variable has a standard error (``<variable>_se``): moved if
+    # |new - old| > error_bars * sqrt(se_old² + se_new²). None: not compared point by point.
+    error_bars: Real | None = Field(4.0, gt=0)
 
     @field_validator("quantiles")
     @classmethod
@@ -106,8 +110,11 @@ class IrregularCheck(StrictModel):
 
     @model_validator(mode="after")
     def _check(self) -> IrregularCheck:
-        if self.median_shift is None and self.quantile_shift is None and self.ks_pvalue is None:
-            raise ValueError("give at least one of median_shift, quantile_shift, ks_pvalue")
+        checks = (self.median_shift, self.quantile_shift, self.ks_pvalue, self.error_bars)
+        if all(c is None for c in checks):
+            raise ValueError(
+                "give at least one of median_shift, quantile_shift, ks_pvalue, error_bars"
+            )
         return self
 
 
@@ -164,5 +171,7 @@ class RegressionSpec(StrictModel):
 
     def variables(self) -> list[str]:
         """Every variable the comparison reads (the baseline keeps these)."""
-        names = set(_ALWAYS) | set(self.effective_tolerances()) | set(self.effective_irregular())
+        irregular = self.effective_irregular()
+        errors = {f"{k}_se" for k, c in irregular.items() if c.error_bars is not None}
+        names = set(_ALWAYS) | set(self.effective_tolerances()) | set(irregular) | errors
         return [k for k in VARIABLES if k in names]

@@ -13,7 +13,7 @@ from functools import cache
 from importlib import metadata
 from pathlib import Path
 
-from worker.cpu import compiled_for, kernels
+from worker.cpu import fingerprint
 
 __all__ = ["git_commit", "git_dirty", "package_version", "provenance_attrs", "versions"]
 
@@ -64,22 +64,18 @@ def versions() -> dict[str, str]:
     return {name: package_version(name) for name in ("impactcell", *_LIBRARIES)}
 
 
-@cache
-def _cpu_target() -> tuple[str, str]:
-    """OpenBLAS's kernels and numba's target, asked once per process (fixed once loaded)."""
-    return kernels(), compiled_for()
-
-
 def provenance_attrs() -> dict[str, str]:
     """Dataset attributes: ``impactcell_version``, ``git_commit``, ``git_dirty``,
-    ``<library>_version`` for numpy, numba, xarray and dask, ``blas_kernels`` and
-    ``numba_cpu``: the OpenBLAS kernels and numba's target of the process writing the file (its
-    embedded workers inherit its pin; worker/cpu.py), which decide a point's last bits."""
+    ``<library>_version`` for numpy, numba, xarray and dask, and what decides a point's last
+    bits (``worker.cpu.fingerprint``: ``numba_cpu``, ``blas_kernels``, ``blas_threads``,
+    ``numpy_simd``, ``machine``, ``libc``, the scipy and llvmlite versions). Every worker that
+    computes a point of the run is checked to have this same fingerprint before it computes
+    (``service.studies.tasks.chunk_task``), so these are the workers' too."""
     v = versions()
     return {
         "impactcell_version": v["impactcell"],
         "git_commit": git_commit(),
         "git_dirty": git_dirty(),
         **{f"{name}_version": v[name] for name in _LIBRARIES},
-        **dict(zip(("blas_kernels", "numba_cpu"), _cpu_target(), strict=True)),
+        **fingerprint(),
     }

@@ -60,8 +60,7 @@ from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
 from service.studies.tasks import chunk_task, compute_chunk
 from service.studies.variables import OUTCOMES, outcome_names
-from worker import simulate
-from worker.cpu import THREAD_ENVS
+from worker import cpu, simulate
 from worker.simulate import (
     PointLimits,
     SolverSettings,
@@ -145,7 +144,7 @@ def _worker_environ() -> None:
     import dask
 
     env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
-    missing = {k: 1 for k in THREAD_ENVS if k not in env}
+    missing = {k: 1 for k in cpu.THREAD_ENVS if k not in env}
     if missing:
         dask.config.set({"distributed.nanny.pre-spawn-environ": {**env, **missing}})
 
@@ -185,7 +184,13 @@ def make_client(
     # (run_study collates meanwhile) failed with "ConnectionPool is closed". Every call here
     # names its client.
     if scheduler:
-        return Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False), None
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
+        try:
+            check_workers(client)
+        except BaseException:
+            client.close()
+            raise
+        return client, None
     _worker_environ()
     _quiet_embedded_cluster()
     forkserver.start()  # workers forked from a process that has loaded them (if not done yet)
@@ -227,6 +232,21 @@ def make_client(
     except BaseException:
         cluster.close()
         raise
+
+
+def check_workers(client: Any) -> None:
+    """Refuse a cluster whose workers would compute other bits than this process (another CPU
+    target or library stack: ``worker.cpu.fingerprint``), naming each worker and difference.
+    Workers that join later are checked by every task they run (``tasks.chunk_task``)."""
+    want = cpu.fingerprint()
+    found = client.run(cpu.fingerprint)
+    bad = [f"{addr}: {'; '.join(d)}" for addr, fp in sorted(found.items())
+           if (d := cpu.differences(want, fp))]  # fmt: skip
+    if bad:
+        raise cpu.TargetMismatch(
+            f"{len(bad)} of {len(found)} workers compute otherwise than this service "
+            f"({'; '.join(bad)}); {cpu.REMEDY}"
+        )
 
 
 def _nthreads(client: Any) -> int:
@@ -482,6 +502,7 @@ class ChunkPool:
         self._claims: dict[str, list[tuple[_Piece, int]]] = {}
         self._events: dict[str, str] = {}  # run key → name of its cancel event
         self._tag = uuid.uuid4().hex[:8]  # a resumed run must not reuse keys of a cancelled one
+        self.target = cpu.fingerprint()  # every task's worker must compute the same bits
         self._count = itertools.count()
         # Set by every task's completion (distributed.wait would need dask's default client,
         # which make_client's never is).
@@ -591,6 +612,7 @@ class ChunkPool:
                 self.limits,
                 self._events[key],
                 run.lines,
+                self.target,
                 key=f"impactcell-{run.study.id}-{start}-{stop}-{self._tag}",
                 retries=TASK_RETRIES,
                 pure=False,

@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from worker.cpu import check_target
 from worker.simulate import simulate_chunk, simulate_line
 
 __all__ = ["CANCEL_POLL_S", "CancelProbe", "chunk_task", "compute_chunk"]
@@ -57,8 +58,14 @@ def chunk_task(
     limits: dict[str, Any],
     cancel_event: str,
     line: bool = False,
+    target: dict[str, str] | None = None,
 ) -> list[dict[str, Any]]:
-    """One dask task: :func:`compute_chunk` with the study's cancel event polled inside."""
+    """One dask task: :func:`compute_chunk` with the study's cancel event polled inside.
+
+    ``target`` is the submitting process's ``worker.cpu.fingerprint()``: a worker that would
+    compute other bits (another CPU target or library stack) raises ``TargetMismatch`` naming
+    the difference and computes nothing."""
+    check_target(target)
     return compute_chunk(points, solver, limits, CancelProbe(cancel_event), line)
 
 

@@ -12,7 +12,7 @@ import pytest
 from worker import cpu
 
 CAN_PIN = cpu.pinnable()
-PINS = (cpu.BLAS_ENV, cpu.NUMBA_ENV, cpu.NUMPY_ENV)
+PINS = (cpu.BLAS_ENV, cpu.NUMBA_ENV, cpu.FEATURES_ENV, cpu.NUMPY_ENV)
 
 
 def _fresh_env() -> dict[str, str]:
@@ -33,6 +33,7 @@ def test_pins_haswell_only_where_the_cpu_runs_it(monkeypatch: pytest.MonkeyPatch
     assert not any(v in os.environ for v in PINS)
     assert cpu.pin(frozenset({"avx", "avx2", "fma", "avx512f"})) == "Haswell"
     assert (os.environ[cpu.BLAS_ENV], os.environ[cpu.NUMBA_ENV]) == ("Haswell", "haswell")
+    assert os.environ[cpu.FEATURES_ENV] == ""  # Haswell's own features, never the host's
     assert os.environ[cpu.NUMPY_ENV] == "X86_V4 AVX512_ICL AVX512_SPR"
 
 
@@ -185,3 +186,77 @@ def test_every_way_into_the_service_pins_before_numpy_loads(module: str) -> None
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "numpy loaded before the pin: False"
+
+
+def test_the_fingerprint_names_the_pinned_target_here() -> None:
+    fp = cpu.fingerprint()
+    assert tuple(fp) == cpu.FINGERPRINT_KEYS
+    assert all(isinstance(v, str) and v for v in fp.values())
+    assert fp["blas_threads"] == "1"
+    if CAN_PIN:  # no AVX-512 anywhere, whatever this CPU has
+        assert (fp["numba_cpu"], fp["blas_kernels"], fp["numpy_simd"]) == (
+            "haswell",
+            "Haswell",
+            "X86_V3",
+        )
+
+
+def test_a_target_name_says_whose_features_numba_adds() -> None:
+    assert cpu._target_name("haswell", "") == "haswell"
+    assert cpu._target_name("haswell", None) == "haswell+host"
+    assert cpu._target_name("haswell", "+avx512f") == "haswell+avx512f"
+
+
+def test_a_worker_with_another_fingerprint_is_refused_naming_each_difference() -> None:
+    mine = cpu.fingerprint()
+    cpu.check_target(dict(mine))  # the same: nothing said
+    cpu.check_target(None)
+    other = {**mine, "numba_cpu": "haswell+host", "numpy_version": "0.0"}
+    assert cpu.differences(other, mine) == [
+        f"numba_cpu {mine['numba_cpu']}, not haswell+host",
+        f"numpy_version {mine['numpy_version']}, not 0.0",
+    ]
+    with pytest.raises(cpu.TargetMismatch, match="numba_cpu .* not haswell\\+host.*preload-nanny"):
+        cpu.check_target(other)
+
+
+def test_numba_compiles_for_the_pinned_cpu_with_its_own_features_only() -> None:
+    # What numba hands LLVM in this (conftest-pinned) process: unset, the features would be the
+    # host's (AVX-512 on such a machine), whatever the CPU's name.
+    from numba import njit
+
+    @njit
+    def twice(x: float) -> float:
+        return 2.0 * x
+
+    assert twice(1.5) == 3.0
+    codegen = twice.targetctx.codegen()
+    if CAN_PIN:
+        assert (codegen._get_host_cpu_name(), codegen._tm_features) == (cpu.NUMBA_CPU, "")
+
+
+# Compiles the event kernel afresh (the cache's code cannot be disassembled), then reads it.
+_ASM = """
+import re, worker
+from worker.simulate import warm_up
+from worker.solvers.event.kernel import event_kernel
+warm_up("event", quiet=True)
+asm = "".join(event_kernel.inspect_asm(s) for s in event_kernel.signatures)
+print(len(asm), len(re.findall(r"%zmm\\d|%k[1-7]\\b", asm)))
+"""
+
+
+@pytest.mark.slow  # a new Python process compiling the event kernel (~1 min)
+@pytest.mark.skipif(not CAN_PIN, reason="the pin applies to x86-64 CPUs with AVX2 and FMA")
+def test_the_compiled_event_kernel_uses_no_avx512_whatever_this_cpu_has(tmp_path) -> None:
+    # Another CPU's code path, seen from this one: the machine code names no AVX-512 register
+    # (zmm, or the mask registers k1-k7). Compiled with the host's features on an AVX-512
+    # machine (NUMBA_CPU_FEATURES unset), the same kernel names them thousands of times.
+    env = {**_fresh_env(), "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run(
+        [sys.executable, "-c", _ASM], env=env, capture_output=True, text=True, timeout=900
+    )
+    assert out.returncode == 0, out.stderr
+    size, avx512 = map(int, out.stdout.split())
+    assert size > 100_000  # the kernel's code was read, not an empty text
+    assert avx512 == 0

@@ -34,6 +34,7 @@ from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from service.studies.variables import outcome_attrs, outcome_codes, outcome_names
 from tests.service.helpers import TINY, write_suite
+from worker.cpu import FINGERPRINT_KEYS
 from worker.simulate import SOLVER_VERSION
 from worker.solvers.settings import OUTCOMES
 
@@ -150,14 +151,14 @@ def test_suite_passes_against_its_own_baselines(suite: dict[str, Path]) -> None:
 def test_baseline_files_are_small_and_record_provenance(made: Path) -> None:
     with xr.open_dataset(made / "baselines" / "tiny.nc") as ds:
         assert set(ds.data_vars) == {
-            "transmittance_db", "theta_eff", "outcome", "response_period", "floquet_multiplier",
-            "failed",
+            "transmittance_db", "transmittance_db_se", "theta_eff", "outcome", "response_period",
+            "floquet_multiplier", "failed", "reason",
         }  # fmt: skip
         assert ds["outcome"].attrs["flag_meanings"] == "linear periodic irregular unsettled failed"
         assert ds.attrs["solver_version"] == SOLVER_VERSION
         for key in (
             "impactcell_version", "git_commit", "solver_version", "solver_settings", "study",
-            "study_id", "baseline_created",
+            "study_id", "baseline_created", *FINGERPRINT_KEYS,
         ):  # fmt: skip
             assert ds.attrs.get(key), key
         assert ds["transmittance_db"].encoding.get("zlib") is True
@@ -781,3 +782,57 @@ def test_a_moved_point_of_a_sweep_baseline_is_named_by_its_direction_and_start()
     assert c.coords["direction"] == str(base["direction"].values[d])
     assert c.coords["initial"] == str(base["initial"].values[i])
     assert c.coords["gamma_r"] == pytest.approx(float(base["gamma_r"].values[g]))
+
+
+def test_outcome_changes_at_sensitive_points_are_listed_not_counted() -> None:
+    from service.regression.compare import SENSITIVE_MULTIPLIER
+    from worker.solvers.engine import TRANSIENT_NOTE
+
+    g = np.array([-10.0, -11.0, -12.0, -13.0])
+    old = _synthetic(g, np.array([1, 1, 1, 1]), outcome=["linear", "periodic", "periodic",
+                                                          "periodic"])  # fmt: skip
+    old["floquet_multiplier"].values[:] = [np.nan, 0.5, SENSITIVE_MULTIPLIER + 0.005, 0.5]
+    new = _synthetic(g, np.array([0, 0, 0, 1]), outcome=["irregular", "irregular", "irregular",
+                                                          "periodic"])  # fmt: skip
+    new["reason"] = ("gamma_r", np.array([f"impact-free response admissible too: {TRANSIENT_NOTE}",
+                                          "", "", ""], object))  # fmt: skip
+    out = compare(new, old, study="synthetic")
+    by = {c.old + ">" + c.new + str(i): c for i, c in enumerate(out.changes)}
+    assert len(out.changes) == 3
+    # Transient chaos that may die out, and an orbit next to a bifurcation: listed, said why.
+    assert not by["linear>irregular0"].regression
+    assert by["linear>irregular0"].note.startswith("sensitive: may be transient chaos")
+    assert not by["periodic>irregular2"].regression
+    assert "Floquet multiplier near 1" in by["periodic>irregular2"].note
+    # A well-attracting orbit that became irregular is a regression.
+    assert by["periodic>irregular1"].regression
+    assert len(out.regressions) == 1 and out.status == "failed"
+    assert any("2 outcome changes at sensitive points" in n for n in out.notes)
+    md = NightlyReport([out], "s", "b", "embedded", False, "now").to_markdown()
+    assert "outcome (sensitive, not a regression)" in md
+
+
+def test_irregular_points_are_compared_within_their_combined_error_bars() -> None:
+    n = 6
+    g = np.linspace(-25.0, -20.0, n)
+    irregular = np.zeros(n)
+    old, new = _synthetic(g, irregular), _synthetic(g.copy(), irregular)
+    se = np.full(n, 0.1)
+    old["transmittance_db_se"] = ("gamma_r", se)
+    new["transmittance_db_se"] = ("gamma_r", se)
+    # 4 combined standard errors are 0.566 dB: 0.5 dB is within, 0.6 dB is not.
+    new["transmittance_db"].values[[1, 4]] += [0.5, -0.6]
+    out = compare(new, old, study="synthetic")
+    assert [(c.kind, round(c.coords["gamma_r"], 6)) for c in out.regressions] == [
+        ("moved", round(float(old["gamma_r"][4]), 6))
+    ]
+    assert out.regressions[0].tolerance.startswith("within 4 combined standard errors")
+    # A wider error bar on the new run: within again.
+    new["transmittance_db_se"].values[4] = 0.2
+    assert not compare(new, old).regressions
+    # A baseline without error bars: said, not compared point by point.
+    out = compare(new, old.drop_vars("transmittance_db_se"))
+    assert not out.regressions
+    assert any("transmittance_db_se not in both" in note for note in out.notes)
+    # The baseline keeps the error bar and the reason the comparison reads.
+    assert {"transmittance_db_se", "reason"} <= set(RegressionSpec().variables())

@@ -33,9 +33,8 @@ def test_git_is_asked_once_per_process(monkeypatch: pytest.MonkeyPatch) -> None:
     assert [c[:2] for c in calls] == [["git", "rev-parse"], ["git", "status"]]
     assert first["git_dirty"] in ("yes", "no", "unknown")
     assert set(first) == {
-        "impactcell_version", "git_commit", "git_dirty",
-        "numpy_version", "numba_version", "xarray_version", "dask_version", "blas_kernels",
-        "numba_cpu",
+        "impactcell_version", "git_commit", "git_dirty", "xarray_version", "dask_version",
+        *cpu.FINGERPRINT_KEYS,
     }  # fmt: skip
     # Which OpenBLAS kernels and numba target compute the points: pinned where the CPU runs them.
     if cpu.pinnable():

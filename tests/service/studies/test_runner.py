@@ -281,11 +281,21 @@ def test_embedded_cluster_starts_while_the_parent_warms_up(monkeypatch) -> None:
         make_client(None, 2)
     assert calls == ["forkserver", "cluster 2", "closed"]
 
-    # A scheduler elsewhere: its workers do not share this machine's cache; nothing to warm.
+    # A scheduler elsewhere: its workers do not share this machine's cache; nothing to warm,
+    # but every worker is asked for its fingerprint (tests/test_topology.py: one is refused).
+    class FakeClient:
+        def __init__(self, address: str, **kw: Any) -> None:
+            self.address = address
+
+        def run(self, fn: Any) -> dict[str, Any]:
+            calls.append(f"run {fn.__name__}")
+            return {}
+
     calls.clear()
-    monkeypatch.setattr(dask.distributed, "Client", lambda address, **kw: ("client", address))
-    make_client("tcp://127.0.0.1:1", None)
-    assert calls == []
+    monkeypatch.setattr(dask.distributed, "Client", FakeClient)
+    client, cluster = make_client("tcp://127.0.0.1:1", None)
+    assert (client.address, cluster) == ("tcp://127.0.0.1:1", None)
+    assert calls == ["run fingerprint"]
 
 
 def test_local_workers_are_asked_to_load_a_method_only_after_this_process_filled_the_cache(
