@@ -1,6 +1,7 @@
 """Test-wide setup: cached bytecode, one BLAS thread, and the test tiers."""
 
 import gc
+import importlib
 import os
 import sys
 
@@ -21,7 +22,9 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 # Before numpy loads OpenBLAS, like the thread count: the same BLAS kernels and compiled code on
 # every x86-64 machine, so the numbers the tests check do not depend on the CPU (worker/cpu.py).
 import worker  # noqa: E402, F401
-import numpy  # noqa: E402, F401  (loaded pinned here: tests/worker/test_cpu.py asks its OpenBLAS)
+
+# numpy (and its OpenBLAS) loads pinned now: tests/worker/test_cpu.py asks this process's copy.
+importlib.import_module("numpy")
 
 # --------------------------------------------------------------------------- test tiers
 
