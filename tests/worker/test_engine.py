@@ -849,17 +849,35 @@ def test_a_saddle_the_trajectory_passes_is_not_reported_as_reached():
     assert r.floquet_multiplier is not None and r.floquet_multiplier < 1.0
 
 
-def test_an_orbit_confirmed_beside_a_chaotic_trajectory_is_not_reported():
+def orbit_points(p: CellParams, start: np.ndarray, period: int) -> list[np.ndarray]:
+    """The stroboscopic points of the period-``period`` orbit through ``start``."""
+    one = SolverSettings(early_stop=False, max_periods=1, window=1)
+    out = [np.asarray(start)]
+    for _ in range(period - 1):
+        out.append(np.asarray(simulate_point(p, one, initial_state=out[-1]).final_state))
+    return out
+
+
+def test_an_orbit_is_reported_only_where_the_trajectory_reaches_it():
     # the stress sweep's Latin-hypercube point 76: extrapolation confirms a period-1 orbit
     # (no Jacobian there) while the chaotic trajectory is 3 % of the state's size away from it;
     # the trajectory never comes closer than 0.2 % (plain integration stays irregular for
-    # 10,000 periods). Solver version 8 reported that orbit, period 1 at -38.66 dB.
+    # 10,000 periods on the reference machine). An orbit may only be reported where plain
+    # integration from the same start arrives at it: that holds on any CPU, wherever rounding
+    # takes this chaotic trajectory.
     p = CellParams(theta=154.2599287122847, sigma=0.04906008568868349,
                    gamma_s=3.8878197516751696, gamma_r=8.333683955428482,
                    xi=0.31141249723910375, g1=0.019392933751381278,
                    g2=0.0007600803581106133, modes=8, coupling="paper")  # fmt: skip
     r = simulate_point(p)
-    assert r.outcome == "irregular" and r.response_period == 0
+    assert r.outcome in ("periodic", "irregular", "unsettled"), r.reason
+    if r.outcome != "periodic":
+        assert r.response_period == 0
+        return
+    plain = simulate_point(p, SolverSettings(early_stop=False, max_periods=r.periods + 200))
+    x = np.asarray(plain.final_state)
+    gap = min(np.max(np.abs(x - o)) for o in orbit_points(p, r.final_state, r.response_period))
+    assert gap <= 1e-6 * np.max(np.abs(x)), f"reported an orbit {gap:.2e} away from the motion"
 
 
 def attraction_rate(p: CellParams, x: np.ndarray) -> float:
@@ -999,28 +1017,37 @@ def test_a_budget_too_short_for_the_statistics_is_unsettled_not_irregular(irregu
 
 
 def test_a_transient_guard_waits_where_chaos_may_die_out_and_moves_no_other_claim():
-    # Figure 5's θ 0.5, gap 0.3, γ_r 4.68: chaos for ~340 periods, then the impact-free
-    # response; claimed irregular at 260 periods, 7.2 dB above where the point ends
+    # Figure 5's θ 0.5, gap 0.3, γ_r 4.68: chaos for hundreds of periods, then the impact-free
+    # response; claimed irregular at 260 periods, 7.2 dB above where the point ends. How long
+    # transient chaos lasts depends on every bit of its trajectory (~340 periods here, more
+    # than 1,000 with another CPU's rounding), so the test holds what must be true for any
+    # lifetime: a noted claim waits for the guard, and ends either on the impact-free response
+    # (exactly) or still irregular, noted, at the guard.
     p = cell(theta=0.5, g1=0.3, g2=0.3, gamma_r=4.68, coupling="paper", modes=5)
     lin = steady_state(assemble(p)).transmittance_db
     plain = simulate_point(p, SolverSettings())
-    assert plain.outcome == "irregular" and TRANSIENT_NOTE in plain.reason
-    assert plain.transmittance_db > lin + 5.0
-    guarded = simulate_point(p, SolverSettings(transient_guard=1000))
-    assert guarded.outcome == "linear" and guarded.transmittance_db == lin
-    assert plain.periods < guarded.periods < 1000
+    assert plain.outcome in ("irregular", "linear"), plain.reason
+    if plain.outcome == "irregular":  # the impact-free response is admissible: always noted
+        assert TRANSIENT_NOTE in plain.reason
+    guard = 10_000
+    guarded = simulate_point(p, SolverSettings(transient_guard=guard, max_periods=guard))
+    if guarded.outcome == "linear":
+        assert guarded.transmittance_db == lin
+        assert plain.periods <= guarded.periods < guard
+    else:
+        assert guarded.outcome in ("irregular", "unsettled")
+        assert guarded.periods >= guard and TRANSIENT_NOTE in guarded.reason
     # an irregular claim without the note (the impact-free response would hit a stop) is
-    # not moved: the same record to the bit
+    # not moved: the same record to the bit (two runs on one machine: no rounding differs)
     q = cell(theta=0.1, gamma_r=0.48, coupling="paper", modes=5)
     a = simulate_point(q, SolverSettings())
     b = simulate_point(q, SolverSettings(transient_guard=1000))
-    assert a.outcome == "irregular" and TRANSIENT_NOTE not in a.reason
+    tail = linear_tail(assemble(q))
+    assert tail.amp > 1.1 * tail.gate  # 19 % past the stops: never noted, on any CPU
+    assert TRANSIENT_NOTE not in a.reason
     assert (b.outcome, b.periods, b.transmittance_db, b.transmittance_db_se) == (
-        a.outcome,
-        a.periods,
-        a.transmittance_db,
-        a.transmittance_db_se,
-    )
+        a.outcome, a.periods, a.transmittance_db, a.transmittance_db_se,
+    )  # fmt: skip
 
 
 def test_chaos_beside_an_admissible_linear_response_is_labelled_as_possibly_transient():
