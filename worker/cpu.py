@@ -57,7 +57,8 @@ __all__ = [
     "BLAS_CORE", "BLAS_ENV", "FEATURES_ENV", "FINGERPRINT_KEYS", "NUMBA_CPU", "NUMBA_ENV",
     "NUMPY_ENV", "NUMPY_OFF",
     "REMEDY", "THREAD_ENVS", "TargetMismatch", "blas_threads", "check_target", "compiled_for",
-    "differences", "fingerprint", "kernels", "numpy_simd", "pin", "pinnable",
+    "differences", "fingerprint", "kernels", "numpy_simd", "on_pinned_target", "pin", "pinnable",
+    "target_label",
 ]  # fmt: skip
 
 BLAS_ENV, BLAS_CORE = "OPENBLAS_CORETYPE", "Haswell"
@@ -258,6 +259,23 @@ def fingerprint() -> dict[str, str]:
         "libc": " ".join(libc) if libc[0] else "unknown",
         **{f"{lib}_version": version(lib) for lib in ("numpy", "scipy", "numba", "llvmlite")},
     }
+
+
+def on_pinned_target() -> bool:
+    """Whether this process computes with the pinned targets (the same bits as every x86-64
+    machine with AVX2 and FMA, for the same library versions)."""
+    fp = fingerprint()
+    off = set(NUMPY_OFF.split())
+    return (
+        fp["numba_cpu"] == NUMBA_CPU and fp["blas_kernels"] == BLAS_CORE
+        and fp["numpy_simd"] not in off
+    )  # fmt: skip
+
+
+def target_label() -> str:
+    """This process's compiled target, BLAS kernels and numpy dispatch as one word."""
+    fp = fingerprint()
+    return f"{fp['machine']}/{fp['numba_cpu']}/{fp['blas_kernels']}/{fp['numpy_simd']}"
 
 
 # How to start a worker so that it computes like the service (docker-compose.yml does this).

@@ -2,9 +2,12 @@
 
 A point's result is determined by its cell (``CellParams``: every field, defaults filled in),
 the solver settings (``SolverSettings``: every field, defaults filled in; they all change the
-numbers), its start and the solver version (``SOLVER_VERSION``). Its key is a content hash of
-exactly these, so a study's name, description, output switches, chunking or place in a grid do
-not change it, and two studies that ask for the same point ask for the same key.
+numbers), its start and the solver version (``SOLVER_VERSION``; on a CPU that does not run the
+pinned targets, with that CPU's target appended, :func:`key_version`, since its last bits
+differ: such points are never reused as the pinned machines' or theirs as its). Its key is a
+content hash of exactly these, so a study's name, description, output switches, chunking or
+place in a grid do not change it, and two studies that ask for the same point ask for the same
+key.
 
 The start is ``"rest"``, the point's ``initial`` entry (kind, seed, index: the worker's), or,
 inside a sweep line, the key of the point before it (``{"after": key}``): a sweep point is the
@@ -18,18 +21,21 @@ those are recomputed when asked for again.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Protocol
 
 from service.studies.schema import Study
+from worker.cpu import on_pinned_target, target_label
 from worker.model import CellParams
 from worker.simulate import POINT_KEYS, SOLVER_VERSION, SolverSettings
 from worker.solvers.settings import OVER_STEPS, OVER_TIME
 
 __all__ = [
     "KEY_LENGTH",
+    "key_version",
     "PARAM_COLUMNS",
     "TASK_FAILED",
     "PointStore",
@@ -107,6 +113,14 @@ def solver_key(solver: Mapping[str, Any]) -> str:
     return digest(_dumps(dict(solver)))
 
 
+@functools.cache
+def key_version() -> str:
+    """The solver version a point's key hashes: ``SOLVER_VERSION`` where this process (and so
+    every worker it lets compute, ``worker.cpu.check_target``) runs the pinned CPU targets,
+    else ``SOLVER_VERSION@<target>`` (``worker.cpu.target_label``)."""
+    return SOLVER_VERSION if on_pinned_target() else f"{SOLVER_VERSION}@{target_label()}"
+
+
 def point_key(
     point: Mapping[str, Any],
     solver: Mapping[str, Any],
@@ -121,7 +135,7 @@ def point_key(
     A point whose parameters are not a valid cell (its record is a failure) is keyed by its
     parameters as given.
     """
-    return _key(point, _dumps(solver), after, SOLVER_VERSION if version is None else version)
+    return _key(point, _dumps(solver), after, key_version() if version is None else version)
 
 
 def _key(point: Mapping[str, Any], solver_json: str, after: str | None, version: str) -> str:
@@ -149,7 +163,7 @@ def _iter_keys(study: Study, start: int, stop: int, solver: Mapping[str, Any]) -
     for i, p in enumerate(study.points(start, stop)):
         if lines and (start + i) % length == 0:
             prev = None
-        key = _key(p, solver_json, prev if lines else None, SOLVER_VERSION)
+        key = _key(p, solver_json, prev if lines else None, key_version())
         prev = key
         yield key
 

@@ -363,3 +363,26 @@ def test_solver_settings_are_stored_once(filled: Any) -> None:
         assert conn.execute(select(func.count()).select_from(SolverRow)).scalar_one() == 1
     row = st.query(PointQuery(limit=1))[0][0]
     assert row["solver"]["max_periods"] == FAST_SOLVER["max_periods"]
+
+
+def test_points_of_an_unpinned_cpu_are_keyed_apart(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A process off the pinned targets (aarch64, x86-64 without AVX2) computes other last bits:
+    # its points get other keys, so neither side reuses the other's as equal.
+    from service.studies import points
+    from worker import cpu
+
+    cell = {"theta": 0.3, "sigma": 0.05, "gamma_s": 1.0, "gamma_r": 1.2, "gap": 0.1}
+    doc = points.solver_document({})
+    if cpu.pinnable():
+        assert points.key_version() == points.SOLVER_VERSION
+    pinned = points.point_key(cell, doc, version=points.SOLVER_VERSION)
+    monkeypatch.setattr(points, "on_pinned_target", lambda: False)
+    monkeypatch.setattr(points, "target_label", lambda: "aarch64/neoverse-n1/NEOVERSEN1/ASIMD")
+    points.key_version.cache_clear()
+    try:
+        assert (
+            points.key_version() == f"{points.SOLVER_VERSION}@aarch64/neoverse-n1/NEOVERSEN1/ASIMD"
+        )
+        assert points.point_key(cell, doc) != pinned
+    finally:
+        points.key_version.cache_clear()
