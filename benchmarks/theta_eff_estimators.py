@@ -7,7 +7,7 @@ is run with the study's settings, one core. θ_eff (``theta_eff``: first harmoni
 and θ_ps (``theta_eff_slope``: the least-squares slope of the velocity phase portrait) are
 compared at the impacting points (every outcome but ``linear`` and ``failed``): how many have
 opposite signs, the largest and median |θ_eff − θ_ps|, and for linear points the largest
-difference (round-off: both are Re(Ŝ_b/Ŝ) there). At the points whose signs differ, a history
+difference (none: the closed form gives both as Re(Ŝ_b/Ŝ)). At the points whose signs differ, a history
 of the reported response (its orbit's p periods, or 40 periods of an irregular one) splits θ_ps
 by harmonic: r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ = Σ_k w_k r_k, with w_k the k-th harmonic's share of ⟨ṡ²⟩ and
 r_k = Re(V̂_b,k / V̂_k); the fundamental's share w_1 and the ratio r_1 (θ_eff's) show how much
@@ -150,7 +150,14 @@ def main(argv: list[str] | None = None) -> int:
         f"largest {max(diffs):.3g}."
         if diffs
         else "- No impacting points.",
-        f"- Linear points: largest |θ_eff − θ_ps| {lin_max:.2g} (both are Re(Ŝ_b/Ŝ) there).",
+        "- Impacting points where they differ by more than 0.1: "
+        + "; ".join(
+            f"{c}: {sum(r['coupling'] == c and d > 0.1 for r, d in zip(imp, diffs, strict=True))}"
+            f" of {sum(r['coupling'] == c for r in imp)}"
+            for c in ("paper", "full")
+        )
+        + ".",
+        f"- Linear points: largest |θ_eff − θ_ps| {lin_max:.2g} (the closed form: both are Re(Ŝ_b/Ŝ) there, one value).",
         "",
         "Opposite signs, with the fundamental's share w1 of ⟨ṡ²⟩ and of the first ten harmonics, "
         "r1 = Re(V̂_b,1/V̂_1) (θ_eff's ratio) and r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ (θ_ps's), over the reported "
@@ -163,8 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in opposite:
         out = r["outcome"] + (f" p = {r['period']}" if r["outcome"] == "periodic" else "")
         lines.append(
-            f"| {r['study']} {r['case']} | {r['coupling']} | {r['theta']:.3g} | {r['gamma_r']:.4g} | "
-            f"{out} | {r['theta_eff']:+.3f} | "
+            f"| {r['study']} {r['case']} | {r['coupling']} | {r['theta']:.3g} | "
+            f"{r['gamma_r']:.4g} | {out} | {r['theta_eff']:+.3f} | "
             f"{r['theta_ps']:+.3f} | {r['w1']:.2f} | {r['w_first10']:.2f} | {r['r1']:+.3f} | "
             f"{r['r']:+.3f} |"
         )
