@@ -7,11 +7,11 @@ is run with the study's settings, one core. θ_eff (``theta_eff``: first harmoni
 and θ_ps (``theta_eff_slope``: the least-squares slope of the velocity phase portrait) are
 compared at the impacting points (every outcome but ``linear`` and ``failed``): how many have
 opposite signs, the largest and median |θ_eff − θ_ps|, and for linear points the largest
-difference (none: the closed form gives both as Re(Ŝ_b/Ŝ)). At the points whose signs differ, a history
-of the reported response (its orbit's p periods, or 40 periods of an irregular one) splits θ_ps
-by harmonic: r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ = Σ_k w_k r_k, with w_k the k-th harmonic's share of ⟨ṡ²⟩ and
-r_k = Re(V̂_b,k / V̂_k); the fundamental's share w_1 and the ratio r_1 (θ_eff's) show how much
-of θ_ps the harmonics that the impacts excite decide. Writes ``theta_eff_estimators.md`` and
+difference (none: the closed form gives both as Re(Ŝ_b/Ŝ)). At the points whose signs differ,
+a history of the reported response (its orbit's p periods, or 40 periods of an irregular one)
+splits θ_ps by harmonic: r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ = Σ_k w_k r_k, with w_k the k-th harmonic's share of
+⟨ṡ²⟩ and r_k = Re(V̂_b,k / V̂_k); the fundamental's share w_1 and the ratio r_1 (θ_eff's) show
+how much of θ_ps the harmonics that the impacts excite decide. Writes ``theta_eff_estimators.md`` and
 ``.csv`` (docs/accuracy.md, "Effective mass at impacting points").
 """
 
@@ -157,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
             for c in ("paper", "full")
         )
         + ".",
-        f"- Linear points: largest |θ_eff − θ_ps| {lin_max:.2g} (the closed form: both are Re(Ŝ_b/Ŝ) there, one value).",
+        f"- Linear points: largest |θ_eff − θ_ps| {lin_max:.2g} (the closed form gives both as "
+        "Re(Ŝ_b/Ŝ)).",
         "",
         "Opposite signs, with the fundamental's share w1 of ⟨ṡ²⟩ and of the first ten harmonics, "
         "r1 = Re(V̂_b,1/V̂_1) (θ_eff's ratio) and r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ (θ_ps's), over the reported "
