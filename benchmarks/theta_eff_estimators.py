@@ -11,8 +11,9 @@ difference (none: the closed form gives both as Re(Ŝ_b/Ŝ)). At the points whos
 a history of the reported response (its orbit's p periods, or 40 periods of an irregular one)
 splits θ_ps by harmonic: r = ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ = Σ_k w_k r_k, with w_k the k-th harmonic's share of
 ⟨ṡ²⟩ and r_k = Re(V̂_b,k / V̂_k); the fundamental's share w_1 and the ratio r_1 (θ_eff's) show
-how much of θ_ps the harmonics that the impacts excite decide. Writes ``theta_eff_estimators.md`` and
-``.csv`` (docs/accuracy.md, "Effective mass at impacting points").
+how much of θ_ps the harmonics that the impacts excite decide. Writes
+``theta_eff_estimators.md`` and ``.csv`` (docs/accuracy.md, "Effective mass at impacting
+points").
 """
 
 from __future__ import annotations
