@@ -551,8 +551,11 @@ def effective_mass_figure(
     *,
     fixed: Mapping[str, Any] | None = None,
 ) -> Figure:
-    """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): from first harmonics (Eq. 35)
-    and, as a second estimator, from the slope of the velocity phase portrait.
+    """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): the first harmonic at γ_r
+    (Eq. 35), the effective mass at every point (docs/model.md §6). The phase-portrait ratio
+    θ_ps (``theta_eff_slope``: the slope of the velocity phase portrait, every harmonic weighted
+    by its velocity power) is drawn beside it under its own name: equal to θ_eff where the
+    motion is harmonic, not an effective mass at impacting points.
 
     Negative effective mass (θ_eff < 0) is shaded, with the shaded intervals' edges
     interpolated like band edges. When |θ_eff| spans more than two decades the y axis is
@@ -563,7 +566,8 @@ def effective_mass_figure(
     Parameters
     ----------
     ds : xarray.Dataset
-        A results dataset with ``theta_eff`` (``theta_eff_slope`` is drawn when present).
+        A results dataset with ``theta_eff`` (``theta_eff_slope``, θ_ps, is drawn when
+        present).
     sel : mapping, optional
         Values of every dimension other than ``x``.
     x : str, optional
@@ -596,10 +600,13 @@ def effective_mass_figure(
     for k, band in enumerate(band_edges(xv, h, 0.0)):
         ax.axvspan(band.start, band.stop, color="C3", alpha=0.15, lw=0,
                    label="θ_eff < 0 (negative effective mass)" if k == 0 else None)  # fmt: skip
-    ax.plot(xv, h, marker=".", ms=3, lw=1.2, color="C0", label="θ_eff, first harmonics (Eq. 35)")
-    if slope is not None and np.isfinite(slope.values).any():
+    ax.plot(xv, h, marker=".", ms=3, lw=1.2, color="C0",
+            label="θ_eff, effective mass (first harmonic, Eq. 35)")  # fmt: skip
+    drawn_slope = slope is not None and np.isfinite(slope.values).any()
+    if drawn_slope:
         ax.plot(xv, slope.values, marker="o", ms=3, lw=1.0, ls="--", mfc="none", color="C1",
-                label="θ_eff, phase-portrait slope")  # fmt: skip
+                label="θ_ps, phase-portrait slope (all harmonics; not an effective mass "
+                "at impacts)", gid="phase-portrait-ratio")  # fmt: skip
     ax.axhline(0.0, color="k", lw=0.8)
     _mark_outcomes(ax, xv, h, names)
     both = np.concatenate([h, slope.values if slope is not None else []])
@@ -607,8 +614,9 @@ def effective_mass_figure(
     if both.size and both.max() > 100 * max(np.median(both), 1.0):
         ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel(_axis_label(x, harmonic[x]))
-    ax.set_ylabel("effective mass ratio θ_eff (–)")
-    ax.set_title(_title(_subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
+    ax.set_ylabel("effective mass ratio θ_eff" + (", θ_ps" if drawn_slope else "") + " (–)")
+    what = "effective mass θ_eff: first harmonic at γ_r; shaded where negative"
+    ax.set_title(_title(what, _subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
     _legend(ax, loc="best")
     return fig

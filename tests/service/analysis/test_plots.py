@@ -262,6 +262,22 @@ def test_effective_mass_marks_outcomes() -> None:
     assert len(irr.get_xdata()) == 3
 
 
+def test_the_effective_mass_figure_says_which_estimator_is_which() -> None:
+    from service.analysis.plots import effective_mass_figure
+
+    ds = _synthetic()
+    ax = effective_mass_figure(ds, {"theta": 0.3, "gap": 0.1}).axes[0]
+    texts = _legend_texts(ax.get_legend())
+    assert any(t.startswith("θ_eff, effective mass (first harmonic") for t in texts)
+    assert any(t.startswith("θ_ps, phase-portrait slope") for t in texts)
+    assert not any(t.startswith("θ_eff") and "slope" in t for t in texts)
+    assert "first harmonic" in ax.get_title() and "θ_ps" in ax.get_ylabel()
+    (ps,) = _gid(ax, "phase-portrait-ratio")
+    np.testing.assert_allclose(ps.get_ydata(), ds["theta_eff_slope"].sel(theta=0.3, gap=0.1))
+    alone = effective_mass_figure(ds.drop_vars("theta_eff_slope"), {"theta": 0.3, "gap": 0.1})
+    assert "θ_ps" not in alone.axes[0].get_ylabel()
+
+
 def test_may_be_transient_points_have_a_mark_and_legend_entry_of_their_own() -> None:
     from service.analysis.plots import (
         MARKS,
