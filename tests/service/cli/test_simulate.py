@@ -70,7 +70,11 @@ def test_point_summary_of_an_irregular_point_gives_the_standard_error():
     assert out.returncode == 0, out.stderr
     g, se = d["transmittance_db"], d["transmittance_db_se"]
     assert f"transmittance Γ     {g:.6f} ± {se:.2g} dB" in out.stdout
-    assert re.search(rf"outcome\s+{d['outcome']} after {d['periods']} periods", out.stdout)
+    # an irregular point beside an admissible impact-free response says so, with its duration
+    tag = ""
+    if d["may_be_transient"]:
+        tag = rf", may be transient \(impacts for {d['impacting_periods']} periods\)"
+    assert re.search(rf"outcome\s+{d['outcome']}{tag} after {d['periods']} periods", out.stdout)
     assert "Floquet" not in out.stdout and "period-" not in out.stdout
 
 
