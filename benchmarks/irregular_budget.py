@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             long_period=lr.response_period, diff_db=diff,
             z=z, within=bool(z is not None and z <= 3.0
                              and lr.outcome in ("irregular", "unsettled")),
-            labelled_transient=TRANSIENT_NOTE in r.reason, long_s=dt,
+            labelled_transient=r.may_be_transient, long_s=dt,
         ))  # fmt: skip
     n = len(rows)
     ok = sum(r["within"] for r in rows)
@@ -271,7 +271,7 @@ def noted_rows(
     )
     rows = []
     for case, g, p, r, dt in found:
-        if TRANSIENT_NOTE not in r.reason:
+        if not r.may_be_transient:
             continue
         t1 = time.perf_counter()
         lr = simulate_point(p, longer)

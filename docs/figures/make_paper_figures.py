@@ -96,14 +96,15 @@ def figure5(theta1: xr.Dataset, second: xr.Dataset, out: Path) -> None:
 
 
 def figure6(curve: xr.Dataset, sweep: xr.Dataset, out: Path) -> None:
-    """θ_eff over γ_r at θ = 1 with the paper's five values; θ_eff over θ at those five."""
+    """θ_eff over γ_r at θ = 1 (with θ_ps) and the paper's five values; θ_eff over θ at those
+    five."""
     fig, (ax, bx) = plt.subplots(
         1, 2, figsize=(11, 4.2), layout="constrained", gridspec_kw={"width_ratios": [3, 2]}
     )
     x = curve.gamma_r.values
     h, s = curve.theta_eff.values, curve.theta_eff_slope.values
-    ax.plot(x, h, color="C0", lw=1.1, label="θ_eff, first harmonics (Eq. 35)")
-    ax.plot(x, s, color="C1", lw=0.9, ls="--", label="θ_eff, phase-portrait slope")
+    ax.plot(x, h, color="C0", lw=1.1, label="θ_eff, effective mass (first harmonic, Eq. 35)")
+    ax.plot(x, s, color="C1", lw=0.9, ls="--", label="θ_ps, phase-portrait slope (all harmonics)")
     mark_outcomes(ax, x, h, curve.outcome.values, "C0")
     ax.plot(list(PAPER_FIG6), list(PAPER_FIG6.values()), "r*", ms=9, label="paper (average)")
     for g, v in PAPER_FIG6.items():
@@ -124,7 +125,7 @@ def figure6(curve: xr.Dataset, sweep: xr.Dataset, out: Path) -> None:
         bx.plot([1.0], [PAPER_FIG6[round(float(g), 2)]], "*", ms=9, color=f"C{k}")
     bx.axhline(0.0, color="k", lw=0.6)
     bx.set_xlabel("mass ratio θ")
-    bx.set_ylabel("θ_eff, first harmonics")
+    bx.set_ylabel("effective mass θ_eff (first harmonic)")
     bx.set_title("paper-fig6-theta-sweep (stars: the paper at θ = 1)", fontsize=9)
     bx.grid(True, lw=0.4, alpha=0.5)
     bx.legend(fontsize=7, loc="lower left")

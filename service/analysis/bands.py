@@ -309,8 +309,9 @@ def bandgap_map(
             ("band_stop_hi", "upper end of the interval the band's upper edge lies in"),
         )):  # fmt: skip
             data_vars[name] = ((*ydims, "band"), bounds[i], {"units": units, "long_name": what})
-    # to mark irregular, unsettled, failed, pending cells (and an adaptive line's unsampled)
-    for extra in ("outcome", "pending", "sampled"):
+    # to mark irregular (and may-be-transient), unsettled, failed, pending cells (and an
+    # adaptive line's unsampled)
+    for extra in ("outcome", "may_be_transient", "pending", "sampled"):
         if extra in ds.data_vars:
             da = slice_axes(ds, extra, [y, x], sel, nearest)
             data_vars[extra] = da.sortby(x) if y is None else da.sortby([y, x])

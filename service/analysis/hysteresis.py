@@ -262,6 +262,10 @@ def hysteresis_map(
     if "outcome" in ds.data_vars:
         codes = _rows(ds, "outcome", branch_dims, x, view.sel, nearest, curves)
         data_vars["outcome"] = (("branch", x), codes, dict(ds["outcome"].attrs))
+    if "may_be_transient" in ds.data_vars:
+        flag = _rows(ds, "may_be_transient", branch_dims, x, view.sel, nearest, curves)
+        data_vars["may_be_transient"] = (("branch", x), flag.astype(bool),
+                                         dict(ds["may_be_transient"].attrs))  # fmt: skip
     if "pending" in ds.data_vars:
         pend = _rows(ds, "pending", branch_dims, x, view.sel, nearest, curves).astype(bool)
         data_vars["pending"] = (("branch", x), pend, dict(ds["pending"].attrs))

@@ -6,7 +6,9 @@ be drawn from several threads of a web server at once; tests inspect these objec
 ``*_png`` function returns the bytes of that figure at a fixed size (``figsize × dpi``; no
 tight bounding box): PNG, or SVG with ``fmt="svg"``. Points that are not a proven steady state
 (irregular, unsettled, failed) are marked the same way in every figure (:data:`MARKS`) and
-counted in its legend, so a jump in a curve is never mistaken for a resolved feature. Axes
+counted in its legend, so a jump in a curve is never mistaken for a resolved feature; an
+irregular point flagged ``may_be_transient`` (its impacts may still die out into the
+impact-free response) has a mark of its own. Axes
 that a request left open and that were fixed at a default (``fixed``, from
 :func:`service.analysis.selection.default_view`) are named in the title.
 
@@ -45,6 +47,7 @@ __all__ = [
     "FIGSIZE",
     "FORMATS",
     "MARKS",
+    "TRANSIENT",
     "bandgap_figure",
     "bandgap_png",
     "cell_edges",
@@ -152,14 +155,19 @@ def _default_x(ds: xr.Dataset, variable: str) -> str:
 
 # --------------------------------------------------------------------------- outcome marks
 
+#: The mark of an irregular point flagged ``may_be_transient`` (it replaces ``irregular``).
+TRANSIENT = "may_be_transient"
 #: How points that are not a proven steady state are marked, in every figure (outcome ->
 #: Line2D style). Irregular and unsettled points sit on their curve (their Γ is a window mean,
 #: not an orbit's); failed points have no value and sit on a strip at the bottom of the axes.
 MARKS: dict[str, dict[str, Any]] = {
     "irregular": {"marker": "x", "ms": 6, "mew": 1.4, "color": "k", "mfc": "k"},
+    # an irregular point flagged may_be_transient: its Γ is not a settled value
+    TRANSIENT: {"marker": "D", "ms": 5, "mew": 1.3, "color": "C1", "mfc": "none"},
     "unsettled": {"marker": "s", "ms": 6, "mew": 1.3, "color": "C3", "mfc": "none"},
     "failed": {"marker": "X", "ms": 7, "mew": 0.6, "color": "C3", "mfc": "C3", "mec": "k"},
 }
+_MARK_LABELS = {TRANSIENT: "irregular, may be transient"}  # legend text ("" = the name)
 _STRIP = 0.03  # height (axes fraction) of the strip where points without a value are marked
 _VARIABLE_TEXT = {  # symbol (titles, legends) and axis label of each mappable variable
     "transmittance_db": ("Γ", "transmittance Γ (dB)"),
@@ -187,6 +195,9 @@ def _outcomes(
     if "outcome" in ds.data_vars:
         o = slice_axes(ds, "outcome", axes, sel, nearest).sortby(x).transpose(*like.dims)
         names = outcome_names(o).astype(object)
+    if TRANSIENT in ds.data_vars:
+        f = slice_axes(ds, TRANSIENT, axes, sel, nearest).sortby(x).transpose(*like.dims)
+        names = _with_transient(names, f.values)
     if "pending" in ds.data_vars:
         pend = slice_axes(ds, "pending", axes, sel, nearest).sortby(x).transpose(*like.dims)
         names[np.asarray(pend.values, dtype=bool)] = "pending"
@@ -194,6 +205,18 @@ def _outcomes(
         took = slice_axes(ds, "sampled", axes, sel, nearest).sortby(x).transpose(*like.dims)
         names[~np.asarray(took.values, dtype=bool)] = UNSAMPLED
     return names.astype(str)
+
+
+def _with_transient(names: np.ndarray, flag: Any) -> np.ndarray:
+    """``names`` with the irregular points that ``flag`` (``may_be_transient``) marks named
+    :data:`TRANSIENT`."""
+    out = np.asarray(names).astype(object)
+    out[(out == "irregular") & np.asarray(flag, dtype=bool)] = TRANSIENT
+    return out
+
+
+def _mark_label(kind: str, n: int) -> str:
+    return f"{_MARK_LABELS.get(kind, kind)} ({n})"
 
 
 def _taken(names: np.ndarray) -> np.ndarray:
@@ -212,7 +235,7 @@ def _mark_outcomes(ax: Any, xv: np.ndarray, values: np.ndarray, names: np.ndarra
         n = int(hit.sum())
         if not n:
             continue
-        label = f"{kind} ({n})"
+        label = _mark_label(kind, n)
         if kind == "failed":
             ax.plot(
                 xs[hit],
@@ -367,6 +390,8 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
     order = (*([y] if y else []), x)  # (y, x) or (x,), like the values below
     if "outcome" in map_ds.data_vars:
         names = outcome_names(map_ds["outcome"].transpose(*order)).astype(object)
+        if TRANSIENT in map_ds.data_vars:
+            names = _with_transient(names, map_ds[TRANSIENT].transpose(*order).values)
         if "pending" in map_ds.data_vars:
             names[np.asarray(map_ds["pending"].transpose(*order).values, dtype=bool)] = "pending"
         if "sampled" in map_ds.data_vars:
@@ -493,7 +518,7 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
         n = int(hit.sum())
         if n:  # at the cell centres: every marked cell is a grid point
             ax.plot(xs[hit], ys[hit], ls="none", zorder=4, gid=f"outcome-{kind}", **style)
-            handles.append(Line2D([], [], ls="none", label=f"{kind} ({n})", **style))
+            handles.append(Line2D([], [], ls="none", label=_mark_label(kind, n), **style))
     pending = int(np.sum(names == "pending"))
     if pending:
         handles.append(Patch(facecolor="0.75", label=f"not computed yet ({pending})"))
@@ -526,8 +551,11 @@ def effective_mass_figure(
     *,
     fixed: Mapping[str, Any] | None = None,
 ) -> Figure:
-    """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): from first harmonics (Eq. 35)
-    and, as a second estimator, from the slope of the velocity phase portrait.
+    """Effective mass ratio θ_eff against ``x`` (paper Fig. 6): the first harmonic at γ_r
+    (Eq. 35), the effective mass at every point (docs/model.md §6). The phase-portrait ratio
+    θ_ps (``theta_eff_slope``: the slope of the velocity phase portrait, every harmonic weighted
+    by its velocity power) is drawn beside it under its own name: equal to θ_eff where the
+    motion is harmonic, not an effective mass at impacting points.
 
     Negative effective mass (θ_eff < 0) is shaded, with the shaded intervals' edges
     interpolated like band edges. When |θ_eff| spans more than two decades the y axis is
@@ -538,7 +566,8 @@ def effective_mass_figure(
     Parameters
     ----------
     ds : xarray.Dataset
-        A results dataset with ``theta_eff`` (``theta_eff_slope`` is drawn when present).
+        A results dataset with ``theta_eff`` (``theta_eff_slope``, θ_ps, is drawn when
+        present).
     sel : mapping, optional
         Values of every dimension other than ``x``.
     x : str, optional
@@ -571,10 +600,13 @@ def effective_mass_figure(
     for k, band in enumerate(band_edges(xv, h, 0.0)):
         ax.axvspan(band.start, band.stop, color="C3", alpha=0.15, lw=0,
                    label="θ_eff < 0 (negative effective mass)" if k == 0 else None)  # fmt: skip
-    ax.plot(xv, h, marker=".", ms=3, lw=1.2, color="C0", label="θ_eff, first harmonics (Eq. 35)")
-    if slope is not None and np.isfinite(slope.values).any():
+    ax.plot(xv, h, marker=".", ms=3, lw=1.2, color="C0",
+            label="θ_eff, effective mass (first harmonic, Eq. 35)")  # fmt: skip
+    drawn_slope = slope is not None and np.isfinite(slope.values).any()
+    if drawn_slope:
         ax.plot(xv, slope.values, marker="o", ms=3, lw=1.0, ls="--", mfc="none", color="C1",
-                label="θ_eff, phase-portrait slope")  # fmt: skip
+                label="θ_ps, phase-portrait slope (all harmonics; not an effective mass "
+                "at impacts)", gid="phase-portrait-ratio")  # fmt: skip
     ax.axhline(0.0, color="k", lw=0.8)
     _mark_outcomes(ax, xv, h, names)
     both = np.concatenate([h, slope.values if slope is not None else []])
@@ -582,8 +614,9 @@ def effective_mass_figure(
     if both.size and both.max() > 100 * max(np.median(both), 1.0):
         ax.set_yscale("symlog", linthresh=1.0)
     ax.set_xlabel(_axis_label(x, harmonic[x]))
-    ax.set_ylabel("effective mass ratio θ_eff (–)")
-    ax.set_title(_title(_subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
+    ax.set_ylabel("effective mass ratio θ_eff" + (", θ_ps" if drawn_slope else "") + " (–)")
+    what = "effective mass θ_eff: first harmonic at γ_r; shaded where negative"
+    ax.set_title(_title(what, _subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
     _legend(ax, loc="best")
     return fig
@@ -690,6 +723,8 @@ def hysteresis_figure(h: xr.Dataset, *, fixed: Mapping[str, Any] | None = None) 
 
     if "outcome" in h.data_vars:
         names = outcome_names(h["outcome"]).astype(object)
+        if TRANSIENT in h.data_vars:
+            names = _with_transient(names, h[TRANSIENT].values)
         if "pending" in h.data_vars:
             names[np.asarray(h["pending"].values, dtype=bool)] = "pending"
         names = names.astype(str)

@@ -22,9 +22,9 @@ from sqlalchemy import and_, delete, exists, func, select
 from sqlalchemy.engine import Engine
 
 from service.api.catalogue import PointRow, SolverRow, StudyPointRow, StudyRow, utcnow
-from service.studies.chunks import CHUNK_FIELDS, record_columns
+from service.studies.chunks import CHUNK_FIELDS, record_columns, with_transient_flag
 from service.studies.points import KEY_LENGTH, PARAM_COLUMNS, cell_of, solver_key
-from service.studies.variables import AXES, VARIABLES, outcome_attrs
+from service.studies.variables import AXES, VARIABLES, flag_attrs, outcome_attrs
 from worker.simulate import SOLVER_VERSION
 
 __all__ = [
@@ -334,7 +334,7 @@ def _record_json(record: Mapping[str, Any]) -> str:
 
 def _row_dict(m: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {c: m[c] for c in (*_ID_COLUMNS, *PARAM_COLUMNS)}
-    for k, v in json.loads(m["record"]).items():
+    for k, v in with_transient_flag(json.loads(m["record"])).items():
         if k not in out:
             out[k] = v
     out["solver"] = json.loads(m["settings"])
@@ -401,6 +401,7 @@ def points_dataset(rows: Sequence[Mapping[str, Any]]) -> Any:
         attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
         if var.kind == "flag":
             attrs.update(outcome_attrs())
+        attrs.update(flag_attrs(var))
         a = arr
         if var.kind == "maskint":
             a = arr.astype(np.float64)

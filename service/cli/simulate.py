@@ -110,9 +110,12 @@ def _settings(args: argparse.Namespace) -> Any:
 
 
 def _outcome_text(r: Any) -> str:
-    """``linear``, ``periodic (period 2)``, ``irregular`` or ``unsettled``."""
+    """``linear``, ``periodic (period 2)``, ``irregular``, ``irregular, may be transient`` or
+    ``unsettled``."""
     if r.outcome == "periodic":
         return f"periodic (period {r.response_period})"
+    if r.may_be_transient:
+        return f"{r.outcome}, may be transient (impacts for {r.impacting_periods} periods)"
     return r.outcome
 
 
@@ -138,9 +141,9 @@ def _cmd_point(args: argparse.Namespace) -> int:
         print(f"without stops Γ_lin {lin:.6f} dB (impact effect Γ − Γ_lin "
               f"{'n/a' if eff is None else f'{eff:+.6f}'} dB)")  # fmt: skip
     print(f"amplitude A_s       {result.amplitude:.6g}")
-    print(f"θ_eff (harmonic)    {result.theta_eff:.6g}")
+    print(f"θ_eff, 1st harmonic {result.theta_eff:.6g}  (the effective mass)")
     ts = result.theta_eff_slope
-    print(f"θ_eff (slope)       {'n/a' if ts is None else f'{ts:.6g}'}")
+    print(f"θ_ps, all harmonics {'n/a' if ts is None else f'{ts:.6g}'}  (phase-portrait ratio)")
     print(f"outcome             {_outcome_text(result)} after {result.periods} periods")
     if result.reason:
         print(f"reason              {result.reason}")

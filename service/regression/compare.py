@@ -470,7 +470,10 @@ def _sensitive(ds: xr.Dataset, dims: tuple[str, ...]) -> np.ndarray:
         with np.errstate(invalid="ignore"):
             near = np.isfinite(rho) & (rho >= SENSITIVE_MULTIPLIER)
         why[near] = "Floquet multiplier near 1"
-    if "reason" in ds and set(ds["reason"].dims) == set(dims):
+    if "may_be_transient" in ds and set(ds["may_be_transient"].dims) == set(dims):
+        flag = np.asarray(ds["may_be_transient"].transpose(*dims).values)
+        why[flag.astype(bool)] = "may be transient chaos"
+    if "reason" in ds and set(ds["reason"].dims) == set(dims):  # a file without the flag
         text = ds["reason"].transpose(*dims).values.astype(str)
         why[np.char.find(text, TRANSIENT_NOTE) >= 0] = "may be transient chaos"
     return why

@@ -31,8 +31,9 @@ import xarray as xr
 
 from service.studies.dataset import FILL_INT, PENDING, encoding, write_netcdf
 from service.studies.schema import Study
-from service.studies.variables import SWEEP_VARIABLES, VARIABLES, outcome_codes
+from service.studies.variables import OUTCOMES, SWEEP_VARIABLES, VARIABLES, outcome_codes
 from worker.simulate import SOLVER_VERSION
+from worker.solvers.settings import TRANSIENT_NOTE
 
 __all__ = [
     "CHUNK_FIELDS",
@@ -45,6 +46,7 @@ __all__ = [
     "data_root",
     "is_study_id",
     "iter_chunk_ranges",
+    "with_transient_flag",
 ]
 
 DEFAULT_DATA_DIR = Path("data")
@@ -117,11 +119,28 @@ def iter_chunk_ranges(ranges: Iterable[tuple[int, int]], size: int) -> list[tupl
 # --------------------------------------------------------------------------- records -> arrays
 
 
+def with_transient_flag(record: Mapping[str, Any]) -> Mapping[str, Any]:
+    """``record`` with ``may_be_transient`` and ``impacting_periods``. A record without them
+    (the point store keeps every record of a solver version, whichever code wrote it) gets them
+    from what the same engine decision wrote there too: the reason's note ``TRANSIENT_NOTE`` and
+    the period of the claim, ``steady_period``."""
+    if "may_be_transient" in record:
+        return record
+    flagged = record.get("outcome") == "irregular" and TRANSIENT_NOTE in str(
+        record.get("reason") or ""
+    )
+    periods = record.get("steady_period") if flagged else None
+    return {**record, "may_be_transient": flagged, "impacting_periods": periods}
+
+
 def record_columns(
     records: Sequence[Mapping[str, Any]], fields: Sequence[str] = CHUNK_FIELDS
 ) -> dict[str, np.ndarray]:
     """Per-field arrays of result records (chunk files, the point store's exports); ``None``
-    becomes NaN (floats) or -1 (ints), the ``outcome`` string its flag value."""
+    becomes NaN (floats) or -1 (ints), the ``outcome`` string its flag value; a record without
+    ``may_be_transient`` gets it from :func:`with_transient_flag`."""
+    if "may_be_transient" in fields or "impacting_periods" in fields:
+        records = [with_transient_flag(r) for r in records]
     n = len(records)
     cols: dict[str, np.ndarray] = {}
     for name in fields:
@@ -157,9 +176,18 @@ def record_columns(
 def _chunk_column(data: Mapping[str, np.ndarray], name: str, n: int) -> np.ndarray:
     """Column ``name`` of a loaded chunk of ``n`` points. Chunk files written before a float
     variable existed (``transmittance_linear_db``, ``impact_effect_db``) lack it: missing
-    (NaN) there, so a study resumed across the change still collates."""
+    (NaN) there, so a study resumed across the change still collates. Without
+    ``may_be_transient`` and ``impacting_periods``, they are read from the reason's note and
+    ``steady_period`` (:func:`with_transient_flag`)."""
     if name in data:
         return data[name]
+    if name in ("may_be_transient", "impacting_periods"):  # as with_transient_flag reads them
+        flagged = (np.asarray(data["outcome"]) == OUTCOMES.index("irregular")) & np.array(
+            [TRANSIENT_NOTE in str(r) for r in data["reason"]], dtype=bool
+        )
+        if name == "may_be_transient":
+            return flagged
+        return np.where(flagged, np.asarray(data["steady_period"], dtype=np.int64), FILL_INT)
     if name in VARIABLES and VARIABLES[name].kind == "float":
         return np.full(n, np.nan)
     if name in LINE_FIELDS:  # a line's task that failed: where it started from is unknown

@@ -9,13 +9,14 @@ solver settings as global attributes.
 Missing values: a failed point has ``failed = 1``, ``outcome = failed``, a ``reason``, and every
 measured variable missing. Some values are missing by nature at points that did not fail:
 ``transmittance_db_se`` (only irregular and unsettled points have one), ``floquet_multiplier``
-(only linear and periodic points), ``theta_eff_slope`` (where the phase portrait has no slope),
+(only linear and periodic points), ``impacting_periods`` (only points flagged
+``may_be_transient``), ``theta_eff_slope`` (where the phase portrait has no slope),
 ``transmittance_linear_db`` and ``impact_effect_db`` (no closed form: an undamped resonance; or
 a chunk written before they existed). ``transmittance_linear_db`` is a property of the cell and
 is kept at failed points; ``impact_effect_db`` is missing there.
 Floats are NaN in memory and the netCDF ``_FillValue`` on disk (no NaN is written); integer
-variables that can be missing (``response_period``, ``steady_period``) are stored as int32 with
-``_FillValue = -1`` and read back by xarray as float with NaN.
+variables that can be missing (``response_period``, ``impacting_periods``, ``steady_period``) are
+stored as int32 with ``_FillValue = -1`` and read back by xarray as float with NaN.
 
 JSON: NaN is never written. :func:`jsonable` and :func:`json_number` turn missing and
 non-finite numbers into ``None``, and :func:`json_text` refuses any NaN that slipped through.
@@ -44,6 +45,7 @@ from service.studies.variables import (
     PHYSICAL_VARIABLES,
     SWEEP_VARIABLES,
     VARIABLES,
+    flag_attrs,
     outcome_attrs,
     outcome_counts,
     outcome_names,
@@ -156,6 +158,7 @@ def results_from_records(
         attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
         if var.kind == "flag":
             attrs.update(outcome_attrs())
+        attrs.update(flag_attrs(var))
         if name == "impacts_per_period":
             data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
         else:

@@ -87,7 +87,8 @@ class Outputs(StrictModel):
     """Which result groups are stored (failed, reason and wall_s always are).
 
     transmittance: ``transmittance_db``, ``transmittance_db_se``, ``amplitude``;
-    effective_mass: ``theta_eff``, ``theta_eff_slope``; response: ``outcome``,
+    effective_mass: ``theta_eff`` (the effective mass), ``theta_eff_slope`` (the phase-portrait
+    ratio θ_ps); response: ``outcome``, ``may_be_transient``, ``impacting_periods``,
     ``response_period``, ``impacts_per_period``, ``floquet_multiplier``, ``periods``,
     ``steps``; contact (off by default: diagnostics that cost storage, not insight):
     ``peak_impulse``, ``contact_steps``, ``coarse_steps``, ``steady_period``.

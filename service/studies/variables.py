@@ -9,6 +9,10 @@ How a point ended is ``outcome``: a CF flag variable (int8, ``flag_values`` 0…
 ``flag_meanings`` "linear periodic irregular unsettled failed", the order of
 ``worker.solvers.settings.OUTCOMES``), never missing. Records carry it as a string, chunk files
 and datasets as its flag value; :func:`outcome_names` reads it back as strings.
+
+Whether an irregular point may be transient chaos is ``may_be_transient``: a CF flag too (int8
+on disk, ``flag_values`` 0 1, ``flag_meanings`` "not_flagged may_be_transient"; xarray reads it
+as bool), with ``impacting_periods``, how long the impacting motion has lasted, beside it.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ __all__ = [
     "Variable",
     "axis_symbol",
     "default_x",
+    "flag_attrs",
     "outcome_attrs",
     "outcome_codes",
     "outcome_counts",
@@ -141,6 +146,7 @@ class Variable:
     units: str
     long_name: str
     mask: bool = True  # missing where the point failed
+    flags: tuple[str, ...] = ()  # CF flag_meanings of a bool or flag variable, value 0 first
 
 
 # Result variables, in the order they appear in the dataset.
@@ -173,12 +179,17 @@ VARIABLES: dict[str, Variable] = {
     ),
     "theta_eff": Variable(
         "effective_mass", "float", "1",
-        "effective mass ratio from first harmonics at gamma_r (Eq. 35)",
+        "effective mass ratio theta_eff = M_eff / (m_o + rho A l): force over acceleration at "
+        "the driving frequency, from the first harmonics at gamma_r (Eq. 35); the effective "
+        "mass at every point, impacting or not (docs/model.md section 6)",
     ),
     "theta_eff_slope": Variable(
         "effective_mass", "float", "1",
-        "effective mass ratio from the least-squares slope of the velocity phase portrait, "
-        "(kappa - theta <s_b_dot s_dot> / <s_dot^2>) / (1 + theta); missing if undefined",
+        "phase-portrait ratio theta_ps = (kappa - theta <s_b_dot s_dot> / <s_dot^2>) / "
+        "(1 + theta): the least-squares slope of the velocity phase portrait (the paper's "
+        "Figure 6 panels ii), every harmonic weighted by its velocity power; equal to theta_eff "
+        "where the motion is harmonic (linear points), not an effective mass at impacting "
+        "points; missing if undefined",
     ),
     "outcome": Variable(
         "response", "flag", "1",
@@ -186,6 +197,19 @@ VARIABLES: dict[str, Variable] = {
         "(confirmed orbit with impacts), irregular (converged window statistics), unsettled "
         "(period budget ran out first) or failed",
         mask=False,
+    ),
+    "may_be_transient": Variable(
+        "response", "bool", "1",
+        "irregular point where the impact-free response is admissible too: its impacting "
+        "motion may be transient chaos that dies out into that response (transmittance "
+        "Gamma_lin), so its transmittance is not a settled value",
+        mask=False, flags=("not_flagged", "may_be_transient"),
+    ),
+    "impacting_periods": Variable(
+        "response", "maskint", "1",
+        "excitation periods the impacting motion of a may_be_transient point has lasted: its "
+        "run from the point's start to the irregular claim, impacts continuing into the last "
+        "quarter of its final window; missing elsewhere",
     ),
     "response_period": Variable(
         "response", "maskint", "1",
@@ -259,6 +283,16 @@ SWEEP_VARIABLES: dict[str, Variable] = {
 
 
 # --------------------------------------------------------------------------- the outcome flag
+
+
+def flag_attrs(var: Variable) -> dict[str, Any]:
+    """The CF flag attributes of a bool variable with ``flags`` (values 0, 1, …)."""
+    if not var.flags:
+        return {}
+    return {
+        "flag_values": np.arange(len(var.flags), dtype=np.int8),
+        "flag_meanings": " ".join(var.flags),
+    }
 
 
 def outcome_attrs() -> dict[str, Any]:

@@ -1029,6 +1029,7 @@ def test_a_transient_guard_waits_where_chaos_may_die_out_and_moves_no_other_clai
     assert plain.outcome in ("irregular", "linear"), plain.reason
     if plain.outcome == "irregular":  # the impact-free response is admissible: always noted
         assert TRANSIENT_NOTE in plain.reason
+        assert plain.may_be_transient and plain.impacting_periods == plain.steady_period
     guard = 10_000
     guarded = simulate_point(p, SolverSettings(transient_guard=guard, max_periods=guard))
     if guarded.outcome == "linear":
@@ -1045,6 +1046,7 @@ def test_a_transient_guard_waits_where_chaos_may_die_out_and_moves_no_other_clai
     tail = linear_tail(assemble(q))
     assert tail.amp > 1.1 * tail.gate  # 19 % past the stops: never noted, on any CPU
     assert TRANSIENT_NOTE not in a.reason
+    assert not a.may_be_transient and a.impacting_periods is None
     assert (b.outcome, b.periods, b.transmittance_db, b.transmittance_db_se) == (
         a.outcome, a.periods, a.transmittance_db, a.transmittance_db_se,
     )  # fmt: skip
@@ -1061,7 +1063,50 @@ def test_chaos_beside_an_admissible_linear_response_is_labelled_as_possibly_tran
             assert r.transmittance_db == lin
         else:
             assert r.outcome in ("irregular", "unsettled")
-            assert TRANSIENT_NOTE in r.reason or "ran out" in r.reason
+            assert r.may_be_transient or "ran out" in r.reason
+
+
+def impact_free_admissible(p: CellParams) -> bool | None:
+    """Whether the cell's impact-free steady state is admissible (damped, its tip clear of
+    both stops), from the closed form alone; None within 1e-6 of the stops (too close to the
+    boundary to tell the engine's round-off from a disagreement)."""
+    ss = steady_state(assemble(p))
+    gap = min(p.g1, p.g2)
+    if abs(ss.tip_amplitude - gap) <= 1e-6 * gap:
+        return None
+    return p.xi > 0.0 and ss.tip_amplitude < gap
+
+
+# Irregular-prone cells (paper coupling, 5 modes) on both sides of the admissibility of the
+# impact-free response: which of them a CPU ends irregular is not pinned, only the flag's rule
+TRANSIENT_CELLS = [
+    dict(theta=0.5, g1=0.3, g2=0.3, gamma_r=4.68),  # admissible: transient chaos here
+    dict(theta=0.3, g1=0.1, g2=0.1, gamma_r=5.24),
+    dict(theta=0.1, gamma_r=0.48),  # the impact-free tip would hit a stop
+    dict(theta=0.3, g1=0.7, g2=0.7, gamma_r=1.18),
+    dict(theta=0.3, gamma_r=1.0),  # linear is not admissible near resonance
+]
+
+
+@pytest.mark.parametrize("kw", TRANSIENT_CELLS)
+def test_may_be_transient_is_set_exactly_at_irregular_points_beside_an_admissible_linear_response(
+    kw,
+):
+    p = cell(coupling="paper", modes=5, **kw)
+    admissible = impact_free_admissible(p)
+    assert admissible is not None, "a test cell must not sit on the admissibility boundary"
+    r = simulate_point(p, SolverSettings())
+    assert r.may_be_transient == (r.outcome == "irregular" and admissible)
+    if r.may_be_transient:
+        assert r.transmittance_linear_db is not None and TRANSIENT_NOTE in r.reason
+        assert r.impacting_periods == r.steady_period >= SolverSettings().max_periods // 4
+    else:
+        assert r.impacting_periods is None and TRANSIENT_NOTE not in r.reason
+    rec = r.as_dict()
+    assert (rec["may_be_transient"], rec["impacting_periods"]) == (
+        r.may_be_transient,
+        r.impacting_periods,
+    )
 
 
 # --------------------------------------------------------------------------- failed

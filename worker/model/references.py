@@ -46,7 +46,7 @@ class SteadyState:
     @property
     def theta_eff(self) -> float:
         """θ_eff from the first harmonics (Eq. 35); for a harmonic motion the phase-portrait
-        slope ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ is Re(Ŝ_b/Ŝ) too, so both estimators equal this value."""
+        slope ⟨ṡ_b ṡ⟩/⟨ṡ²⟩ is Re(Ŝ_b/Ŝ) too, so the phase-portrait ratio equals it."""
         ratio = (self.d @ self.U[:-1]) / self.U[-1]
         theta = self.params.theta
         return float((self.kappa - theta * ratio.real) / (1.0 + theta))

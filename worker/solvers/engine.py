@@ -38,6 +38,8 @@ is proven:
 Every result also carries the linear reference ``transmittance_linear_db`` (Γ_lin: the closed
 form of the same cell without stops, ``LinearTail.steady``) and ``impact_effect_db`` = Γ − Γ_lin
 (exactly 0 for ``linear``; ``None`` where Γ or Γ_lin is missing). A ``failed`` point keeps Γ_lin.
+An ``irregular`` point where that impact-free response is admissible too is flagged
+``may_be_transient``, with ``impacting_periods``, the periods its impacting motion has lasted.
 
 Every result that is not ``failed`` carries ``final_state``: the state at a period boundary
 (forcing phase 0) of what it reports — the orbit's start, the closed-form steady state, or the
@@ -68,6 +70,7 @@ from worker.solvers.linear import LinearTail
 from worker.solvers.settings import (
     OVER_STEPS,
     OVER_TIME,
+    TRANSIENT_NOTE,
     PointCancelled,
     PointLimits,
     PointResult,
@@ -88,9 +91,6 @@ __all__ = [
 ]
 
 DIVERGENCE_FACTOR = 1e6  # |x|∞ beyond this times the natural scale is divergence
-# The end of an irregular point's reason where the impact-free response is admissible too
-# (``_Engine._coexistence_note``): how a reader, a benchmark or a test tells such claims apart.
-TRANSIENT_NOTE = "this irregular motion may be transient"
 MIN_WINDOWS = 8  # windows of statistics before an irregular response may be reported
 MAX_TREND = 3.0  # t-statistic of the windows' trend above which Γ is still drifting
 RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
@@ -804,6 +804,8 @@ class _Engine:
         self.nrecent = 0
         self.windows = _Windows(w)
         self.period = 0  # periods of the main trajectory
+        # set with an irregular claim: the impact-free response is admissible too (_irregular)
+        self.may_be_transient = False
         self.work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
         self.checks = (
             (ms.CHECK_LINEAR if run.lin_gate > 0.0 and settings.linear_tail else 0)
@@ -941,7 +943,7 @@ class _Engine:
             if over:
                 return "failed", over
             if self.period % w == 0 and self.checks and self._irregular_converged():
-                return "irregular", self._coexistence_note()
+                return self._irregular()
         return self._at_budget()
 
     def _pace(self, done: int, dt: float) -> None:
@@ -1407,13 +1409,15 @@ class _Engine:
         tail = self.tail
         return tail.steady is not None and tail.damped and tail.amp < tail.gate
 
-    def _coexistence_note(self) -> str:
-        """Irregular motion where the impact-free steady state is also admissible may be
-        transient chaos that a longer run would see die out: say so."""
+    def _irregular(self) -> tuple[str, str]:
+        """Claim an irregular response. Where the impact-free steady state is admissible too,
+        the motion may be transient chaos that a longer run would see die out: the claim is
+        flagged (``may_be_transient``) and its reason says so."""
+        self.may_be_transient = self._linear_admissible()
         ss = self.tail.steady
-        if ss is None or not self._linear_admissible():
-            return ""
-        return (
+        if ss is None or not self.may_be_transient:
+            return "irregular", ""
+        return "irregular", (
             f"the impact-free response (Γ = {ss.transmittance_db:.4g} dB) is admissible here "
             f"too: {TRANSIENT_NOTE}"
         )
@@ -1446,7 +1450,7 @@ class _Engine:
                 f"limited it within {self.period} periods"
             )
         if len(self.windows) and self._impacts_continue() and self._stats_converged():
-            return "irregular", self._coexistence_note()
+            return self._irregular()
         return "unsettled", self._unsettled_reason()
 
     def _unsettled_reason(self) -> str:
@@ -1620,6 +1624,9 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     else:
         assert eng is not None and run is not None
         res = _statistics_result(eng, outcome, str(info or ""), common, kappa, theta)
+        if res.outcome == "irregular" and eng.may_be_transient:
+            res.may_be_transient = True
+            res.impacting_periods = eng.period
         history_start = run.x.copy()
     # the state a sweep line hands on: a period boundary of the reported response (the
     # history, when asked for, starts there too)

@@ -23,6 +23,7 @@ __all__ = [
     "PointLimits",
     "PointResult",
     "SolverSettings",
+    "TRANSIENT_NOTE",
     "int_in",
 ]
 
@@ -46,6 +47,9 @@ def int_in(name: str, value: Any, lo: int, hi: int) -> int:
 #: How the reason of a point over its ``PointLimits`` begins (the rest says by how much).
 OVER_TIME = "time limit of "
 OVER_STEPS = "step budget of "
+#: The end of the reason of an irregular point flagged ``may_be_transient`` (the engine's note
+#: for a human reader; programs read the flag).
+TRANSIENT_NOTE = "this irregular motion may be transient"
 
 
 @dataclass(frozen=True)
@@ -195,6 +199,13 @@ class PointResult:
     undamped resonance). Γ_lin is a property of the cell, not a measurement, so a ``failed``
     point keeps it when it exists; its ``impact_effect_db`` is ``None``.
 
+    ``may_be_transient`` flags an ``irregular`` point where the impact-free response is
+    admissible too (damped, its tip clear of the stops): the impacting motion may be transient
+    chaos that dies out into that response, whose Γ is ``transmittance_linear_db``, so its Γ is
+    not a settled value. ``impacting_periods`` is how long that motion has lasted: the periods
+    of the main trajectory from the point's start to the claim, with impacts in the last quarter
+    of its final window (``None`` where the flag is not set).
+
     ``final_state`` is ``[u; q]`` at a period boundary (forcing phase 0) of the reported
     response, what a sweep line hands to its next point: the orbit's start (``periodic``), the
     closed-form steady state (``linear``), the state at the end of the run (``irregular``,
@@ -222,6 +233,8 @@ class PointResult:
     steps_per_period: int
     transmittance_linear_db: float | None = None
     impact_effect_db: float | None = None
+    may_be_transient: bool = False
+    impacting_periods: int | None = None
     history: dict[str, np.ndarray] | None = field(default=None, repr=False)
     final_state: np.ndarray | None = field(default=None, repr=False)
 

@@ -460,10 +460,12 @@ def plot(
     tol_db: Annotated[float, Query(ge=0, le=1000, description=_TOL_DOC)] = 0.05,
 ) -> Response:
     """A figure, PNG or SVG: transmittance (Fig. 5a style, with the linear reference Γ_lin
-    dashed), bandgap map (of ``variable``, as in ``/bandgap``), effective mass (Fig. 6), or
-    hysteresis (as ``/hysteresis``: up and down curves in two colours with markers pointing
-    the way, jumps dashed, where they differ shaded; 422 without a sweep or several starts).
-    Irregular, unsettled and failed points are marked and counted in the legend. Needs no
+    dashed), bandgap map (of ``variable``, as in ``/bandgap``), effective mass (Fig. 6: θ_eff,
+    the first harmonic, with the phase-portrait ratio θ_ps of ``theta_eff_slope`` dashed and
+    named as such), or hysteresis (as ``/hysteresis``: up and down curves in two colours with
+    markers pointing the way, jumps dashed, where they differ shaded; 422 without a sweep or
+    several starts). Irregular (possibly transient ones apart), unsettled and failed points are
+    marked and counted in the legend. Needs no
     parameters: x defaults to the frequency axis (the swept axis for hysteresis), the hue
     (transmittance) or y (bandgap) to the first other varying axis with few values, and every
     other varying axis is fixed at its first value, named in the title and the

@@ -262,6 +262,55 @@ def test_effective_mass_marks_outcomes() -> None:
     assert len(irr.get_xdata()) == 3
 
 
+def test_the_effective_mass_figure_says_which_estimator_is_which() -> None:
+    from service.analysis.plots import effective_mass_figure
+
+    ds = _synthetic()
+    ax = effective_mass_figure(ds, {"theta": 0.3, "gap": 0.1}).axes[0]
+    texts = _legend_texts(ax.get_legend())
+    assert any(t.startswith("θ_eff, effective mass (first harmonic") for t in texts)
+    assert any(t.startswith("θ_ps, phase-portrait slope") for t in texts)
+    assert not any(t.startswith("θ_eff") and "slope" in t for t in texts)
+    assert "first harmonic" in ax.get_title() and "θ_ps" in ax.get_ylabel()
+    (ps,) = _gid(ax, "phase-portrait-ratio")
+    np.testing.assert_allclose(ps.get_ydata(), ds["theta_eff_slope"].sel(theta=0.3, gap=0.1))
+    alone = effective_mass_figure(ds.drop_vars("theta_eff_slope"), {"theta": 0.3, "gap": 0.1})
+    assert "θ_ps" not in alone.axes[0].get_ylabel()
+
+
+def test_may_be_transient_points_have_a_mark_and_legend_entry_of_their_own() -> None:
+    from service.analysis.plots import (
+        MARKS,
+        TRANSIENT,
+        bandgap_figure,
+        effective_mass_figure,
+        transmittance_figure,
+    )
+
+    ds = _with_outcomes()
+    flag = np.zeros(ds["outcome"].shape, dtype=bool)
+    flag[0, 1, [31, 32]] = True  # two of the three irregular points at θ 0.3, gap 0.1
+    flag[0, 1, 5] = True  # a flag on a linear point is not an irregular one: not marked
+    ds["may_be_transient"] = (ds["outcome"].dims, flag)
+    gr = ds["gamma_r"].values
+    assert MARKS[TRANSIENT]["marker"] != MARKS["irregular"]["marker"]
+    for ax in (
+        transmittance_figure(ds, {"theta": 0.3, "gap": 0.1}).axes[0],
+        effective_mass_figure(ds, {"theta": 0.3, "gap": 0.1}).axes[0],
+    ):
+        texts = _legend_texts(ax.get_legend())
+        assert "irregular (1)" in texts and "irregular, may be transient (2)" in texts
+        (tr,) = _gid(ax, f"outcome-{TRANSIENT}")
+        np.testing.assert_allclose(sorted(tr.get_xdata()), gr[[31, 32]])
+        (irr,) = _gid(ax, "outcome-irregular")
+        np.testing.assert_allclose(irr.get_xdata(), gr[[30]])
+    m = bandgap_map(ds, "gamma_r", "gap", threshold_db=-3, sel={"theta": 0.3})
+    fig = bandgap_figure(m)
+    assert "irregular, may be transient (2)" in _legend_texts(fig.legends[0])
+    (tr,) = _gid(fig.axes[0], f"outcome-{TRANSIENT}")
+    assert set(tr.get_ydata()) == {0.1}
+
+
 def test_bandgap_hatching_is_on_the_cells_of_the_mesh() -> None:
     from matplotlib.collections import QuadMesh
     from matplotlib.patches import Rectangle

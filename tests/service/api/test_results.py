@@ -176,6 +176,19 @@ def test_data_csv_and_typed_json(served: Served) -> None:
     assert "theta" in served.client.data_csv(served.id, theta=0.3)
 
 
+def test_data_serves_the_transient_flag_and_how_long_the_impacts_lasted(served: Served) -> None:
+    recs = [record(i) for i in range(36)]
+    for i in (1, 4):  # irregular beside an admissible impact-free response (constructed)
+        recs[i].update(outcome="irregular", may_be_transient=True, impacting_periods=250 + i,
+                       transmittance_db_se=0.05, response_period=0)  # fmt: skip
+    served.store.write_chunk(0, 36, recs)
+    flag = served.client.data(served.id, variable="may_be_transient", theta=0.1, gap=0.1)
+    assert flag.dtype == bool and list(np.flatnonzero(flag.values)) == [1, 4]
+    assert flag.attrs["flag_meanings"] == "not_flagged may_be_transient"
+    lasted = served.get("/data", variable="impacting_periods", theta=0.1, gap=0.1).json()
+    assert lasted["values"] == [None, 251, None, None, 254, None]
+
+
 @pytest.mark.parametrize("kind", ["transmittance", "bandgap", "effective-mass"])
 @pytest.mark.parametrize("fmt", ["png", "svg"])
 def test_plots_need_no_parameters(served: Served, kind: str, fmt: str) -> None:

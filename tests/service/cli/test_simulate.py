@@ -51,7 +51,8 @@ def test_point_summary_is_readable():
     assert "impacts / period" in out.stdout and "(euler)" in out.stdout
     assert re.search(r"outcome\s+periodic \(period \d+\) after \d+ periods", out.stdout)
     assert re.search(r"Floquet multiplier\s+\|μ\| = 0\.\d+\n", out.stdout)
-    assert "θ_eff (slope)" in out.stdout and "irregular" not in out.stdout
+    assert "θ_ps, all harmonics" in out.stdout and "irregular" not in out.stdout
+    assert re.search(r"θ_eff, 1st harmonic\s+-?\d", out.stdout)
     # a period-21 orbit (Figure 5's cell): its multiplier is over the orbit's 21 periods
     fig5 = ("--theta", "0.3", "--sigma", "0.05", "--gamma-s", "1", "--xi", "0.05", "--gap", "0.7")
     out = run("point", "--gamma-r", "0.98", *fig5)
@@ -69,7 +70,11 @@ def test_point_summary_of_an_irregular_point_gives_the_standard_error():
     assert out.returncode == 0, out.stderr
     g, se = d["transmittance_db"], d["transmittance_db_se"]
     assert f"transmittance Γ     {g:.6f} ± {se:.2g} dB" in out.stdout
-    assert re.search(rf"outcome\s+{d['outcome']} after {d['periods']} periods", out.stdout)
+    # an irregular point beside an admissible impact-free response says so, with its duration
+    tag = ""
+    if d["may_be_transient"]:
+        tag = rf", may be transient \(impacts for {d['impacting_periods']} periods\)"
+    assert re.search(rf"outcome\s+{d['outcome']}{tag} after {d['periods']} periods", out.stdout)
     assert "Floquet" not in out.stdout and "period-" not in out.stdout
 
 

@@ -20,6 +20,7 @@ from service.studies.runner import run_study
 from service.studies.schema import Study
 from tests.service.helpers import FAST_SOLVER, tiny_study
 from worker.simulate import SOLVER_VERSION, PointLimits, SolverSettings
+from worker.solvers.settings import TRANSIENT_NOTE, PointResult
 
 
 def study(definition: dict[str, Any]) -> Study:
@@ -304,6 +305,47 @@ def test_exports_keep_parameters_and_results(filled: Any, tmp_path: Path) -> Non
     assert len(text) == 9 and text[0].startswith("key,version,method,start,theta")
     empty = points_dataset([])
     assert empty.sizes["point"] == 0
+
+
+def irregular_record(flagged: bool | None, steady_period: int = 400) -> dict[str, Any]:
+    """A constructed irregular record (``flagged`` None: one without the two fields, its
+    reason carrying the engine's note)."""
+    res = PointResult(
+        outcome="irregular", transmittance_db=3.0, transmittance_db_se=0.05, amplitude=1.4,
+        theta_eff=0.4, theta_eff_slope=-0.2, response_period=0, impacts_per_period=(1.0, 0.5),
+        peak_impulse=0.1, floquet_multiplier=None, periods=steady_period + 30,
+        steps=10_000, contact_steps=500, coarse_steps=0, steady_period=steady_period,
+        wall_s=0.01, reason=f"… admissible here too: {TRANSIENT_NOTE}" if flagged is not False
+        else "", method="event", steps_per_period=64, transmittance_linear_db=-20.0,
+        impact_effect_db=23.0, may_be_transient=bool(flagged),
+        impacting_periods=steady_period if flagged else None,
+    )  # fmt: skip
+    rec = res.as_dict()
+    if flagged is None:
+        del rec["may_be_transient"], rec["impacting_periods"]
+    return rec
+
+
+def test_the_transient_flag_comes_back_from_the_store_also_for_records_without_it(
+    store: Any,
+) -> None:
+    st, _ = store
+    solver = dataclasses.asdict(SolverSettings())
+    made = {True: irregular_record(True, 300), None: irregular_record(None, 500),
+            False: irregular_record(False)}  # fmt: skip
+    rows = [(f"{k:032x}", {"theta": 0.3, "sigma": 0.05, "gamma_s": 1.0, "gamma_r": 1.0 + k}, rec)
+            for k, rec in enumerate(made.values())]  # fmt: skip
+    st.save(rows, solver)
+    got = sorted(st.iter_query(PointQuery()), key=lambda r: r["key"])
+    assert [(r["may_be_transient"], r["impacting_periods"]) for r in got] == [
+        (True, 300),
+        (True, 500),
+        (False, None),
+    ]
+    ds = points_dataset(got)
+    assert ds.may_be_transient.dtype == bool
+    assert ds.may_be_transient.attrs["flag_meanings"] == "not_flagged may_be_transient"
+    np.testing.assert_array_equal(ds.impacting_periods.values, [300, 500, np.nan])
 
 
 # --------------------------------------------------------------------------- housekeeping

@@ -22,7 +22,7 @@ from service.studies.dataset import (
 from service.studies.schema import parse_study
 from service.studies.variables import outcome_names
 from worker.simulate import simulate_chunk
-from worker.solvers.settings import OUTCOMES
+from worker.solvers.settings import OUTCOMES, TRANSIENT_NOTE
 
 SOLVER = {"steps_per_period": 256, "max_periods": 120, "window": 5}
 
@@ -113,6 +113,58 @@ def test_outcome_flag_round_trips_with_its_cf_attributes(tmp_path: Path) -> None
         assert v.getncattr("flag_meanings") == "linear periodic irregular unsettled failed"
         np.testing.assert_array_equal(v.getncattr("flag_values"), [0, 1, 2, 3, 4])
         np.testing.assert_array_equal(v[:].ravel(), [OUTCOMES.index(n) for n in names])
+
+
+def _flagged(records: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], int, int]:
+    """``records`` with one irregular point flagged may_be_transient (constructed: which points
+    a CPU ends irregular is not pinned) and one more irregular-looking record that lacks both
+    fields but carries the engine's note, as a record written without them does."""
+    out = [dict(r) for r in records]
+    irregular = [i for i, r in enumerate(out) if r["outcome"] == "irregular"]
+    assert irregular, "the grid must have an irregular point"
+    i = irregular[0]
+    note = f"the impact-free response (Γ = -20 dB) is admissible here too: {TRANSIENT_NOTE}"
+    out[i].update(may_be_transient=True, impacting_periods=out[i]["steady_period"], reason=note)
+    j = next(k for k, r in enumerate(out) if k != i and r["outcome"] != "failed")
+    out[j].update(outcome="irregular", reason=note, steady_period=321)
+    del out[j]["may_be_transient"], out[j]["impacting_periods"]
+    return out, i, j
+
+
+def test_may_be_transient_round_trips_as_a_cf_flag_and_records_without_it_stay_readable(
+    tmp_path: Path,
+) -> None:
+    study = _study()
+    store = StudyStore(tmp_path, study)
+    store.prepare()
+    records, i, j = _flagged(_with_failure(_records(study)))
+    _fill(store, records, 4)
+    path = store.write_results(results_from_records(study, store.collect()))
+    back = open_results(path)
+    flat = back.stack(p=list(study.dims()))
+    flag = flat["may_be_transient"].values
+    assert flag.dtype == bool and set(np.flatnonzero(flag)) == {i, j}
+    lasted = flat["impacting_periods"].values
+    assert lasted[i] == records[i]["steady_period"] and lasted[j] == 321
+    assert np.isnan(np.delete(lasted, [i, j])).all()  # only where flagged
+    assert np.isfinite(flat["transmittance_linear_db"].values[[i, j]]).all()
+    with netCDF4.Dataset(path) as nc:
+        v = nc["may_be_transient"]
+        assert v.dtype == np.int8 and v.getncattr("flag_meanings") == (
+            "not_flagged may_be_transient"
+        )
+        np.testing.assert_array_equal(v.getncattr("flag_values"), [0, 1])
+        assert nc["impacting_periods"].dtype == np.int32
+
+    # a chunk file without the two columns: read from the reason's note and steady_period
+    for _, _, chunk in store.chunks():
+        with np.load(chunk) as z:
+            cols = {k: z[k] for k in z.files if k not in ("may_be_transient", "impacting_periods")}
+        with open(chunk, "wb") as fh:
+            np.savez(fh, **cols)
+    again = StudyStore(tmp_path, study).collect()
+    np.testing.assert_array_equal(again["may_be_transient"], flag)
+    assert list(np.flatnonzero(again["impacting_periods"] >= 0)) == sorted((i, j))
 
 
 def test_standard_error_is_a_fill_value_where_it_does_not_apply(tmp_path: Path) -> None:

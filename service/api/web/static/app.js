@@ -20,8 +20,12 @@
   const CURVE_VARIABLES = { transmittance_db: "Γ (dB), Γ_lin dashed", impact_effect_db: "Γ − Γ_lin (dB)",
     transmittance_linear_db: "Γ_lin (dB)", amplitude: "amplitude A_s" };
   const Y_LABELS = { transmittance_db: "Γ (dB)", impact_effect_db: "Γ − Γ_lin (dB)",
-    transmittance_linear_db: "Γ_lin (dB)", amplitude: "A_s / B", theta_eff: "θ_eff", theta_eff_slope: "θ_eff (slope)" };
-  const MASS_VARIABLES = { theta_eff: "θ_eff (first harmonics)", theta_eff_slope: "θ_eff (phase-portrait slope)" };
+    transmittance_linear_db: "Γ_lin (dB)", amplitude: "A_s / B", theta_eff: "θ_eff", theta_eff_slope: "θ_ps" };
+  // θ_eff is the effective mass (first harmonic, docs/model.md §6); θ_ps weighs every harmonic
+  // and is not an effective mass where impacts put motion into the harmonics.
+  const MASS_VARIABLES = { theta_eff: "effective mass θ_eff (first harmonic)",
+    theta_eff_slope: "phase-portrait ratio θ_ps (all harmonics; θ_eff only without impacts)" };
+  const TRANSIENT = 5; // charts.js: an irregular point flagged may_be_transient
   const EXAMPLE = [
     "name: my-first-study",
     "description: Γ over frequency at two gaps",
@@ -489,7 +493,8 @@
     const state = { x: base.x, y: base.y, fixed: Object.assign({}, first), mapVar: "transmittance_db",
       curveVar: "transmittance_db", massVar: "theta_eff" };
     note.textContent = `Varying axes: ${names.map((n) => `${sym(n)} (${axes[n].length})`).join(", ")}. ` +
-      "Irregular (×), unsettled (□) and failed (✖) points are marked; hatched cells are in a band.";
+      "Irregular (×), irregular but possibly transient (◇: the impact-free response Γ_lin is admissible too, " +
+      "so Γ there is not settled), unsettled (□) and failed (✖) points are marked; hatched cells are in a band.";
 
     const controls = h("form", { class: "toolbar", id: "axes", "aria-label": "Axes and slice", onsubmit: (e) => e.preventDefault() });
     const mapBox = h("div", { class: "chart", id: "map-chart" });
@@ -562,13 +567,18 @@
     const label = (n) => sym(n);
 
     /** How each point of the slice ended, -1 where it is not computed yet (a partial
-     * dataset's `pending`; its `outcome` there is a placeholder, not a failure). */
+     * dataset's `pending`; its `outcome` there is a placeholder, not a failure), TRANSIENT
+     * where an irregular point may be transient. */
     async function outcomeGrid() {
-      const [o, pending, sampled] = await Promise.all([slice("outcome").catch(() => null),
+      const [o, pending, sampled, transient] = await Promise.all([slice("outcome").catch(() => null),
         rec().status === "finished" ? null : slice("pending").catch(() => null),
-        slice("sampled").catch(() => null)]);
+        slice("sampled").catch(() => null), slice("may_be_transient").catch(() => null)]);
       if (!o) return null;
       let grid = grid2d(o, state.x, state.y);
+      if (transient) {
+        const f = grid2d(transient, state.x, state.y);
+        grid = grid.map((row, j) => row.map((v, i) => (v === 2 && f[j][i] ? TRANSIENT : v)));
+      }
       if (pending) {
         const p = grid2d(pending, state.x, state.y);
         grid = grid.map((row, j) => row.map((v, i) => (p[j][i] ? -1 : v)));
@@ -583,8 +593,9 @@
     async function drawMap(outcomes) {
       const p = Object.assign({ x: state.x, variable: state.mapVar, nearest: "true" }, fixedParams());
       if (state.y) p.y = state.y;
-      const [m, outcome, reason] = await Promise.all([
+      const [m, outcome, reason, lasted] = await Promise.all([
         getJSON(`studies/${id}/bandgap${query(p)}`), outcomes, slice("reason").catch(() => null),
+        slice("impacting_periods").catch(() => null),
       ]);
       const name = m.variable.name;
       const y = m.y || null;
@@ -594,11 +605,19 @@
         kind: "map", title: `${MAP_VARIABLES[name]} over ${label(m.x)}${y ? " × " + label(y) : ""}`,
         x: { label: label(m.x), values: m.axes.x.values }, y: y ? { label: label(y), values: m.axes.y.values } : null,
         z, attenuating: att, threshold: m.threshold.value, zLabel: MAP_VARIABLES[name].replace(/, .*\(/, " ("),
-        edges: m.edges, outcome, reason: reason ? grid2d(reason, m.x, y) : null,
+        edges: m.edges, outcome, reason: reason ? withLasted(grid2d(reason, m.x, y), lasted, m.x, y) : null,
       });
       edgesList.replaceChildren(...(m.edges || []).map((e) => h("li", {
         text: `${y ? `${label(y)} = ${fmt(e.y)}: ` : ""}${e.bands.length ? e.bands.map((b) => `${fmt(b[0])} – ${fmt(b[1])}`).join(", ") : "no band"}`,
       })), h("li", { class: "muted", text: m.threshold.meaning }));
+    }
+
+    /** Reasons with how long a may-be-transient point's impacting motion has lasted. */
+    function withLasted(reasons, lasted, x, y) {
+      if (!lasted) return reasons;
+      const n = grid2d(lasted, x, y);
+      return reasons.map((row, j) => row.map((r, i) => (n[j][i] === null || n[j][i] === undefined
+        ? r : `${r}; impacts have lasted ${fmt(n[j][i])} periods`)));
     }
 
     async function slice(variable) {

@@ -7,9 +7,14 @@
   const NS = "http://www.w3.org/2000/svg";
   const PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf",
     "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22"];
-  const OUTCOME_NAMES = ["linear", "periodic", "irregular", "unsettled", "failed"];
-  // Irregular, unsettled and failed points get the glyphs of the service's own figures.
-  const GLYPHS = { 2: "×", 3: "□", 4: "✖" };
+  // The dataset's outcome flag values, and 5: an irregular point flagged may_be_transient
+  // (the page sets it from that variable).
+  const OUTCOME_NAMES = ["linear", "periodic", "irregular", "unsettled", "failed",
+    "irregular, may be transient (the impact-free response is admissible)"];
+  // Irregular, may-be-transient, unsettled and failed points get the glyphs of the service's
+  // own figures.
+  const GLYPHS = { 2: "×", 3: "□", 4: "✖", 5: "◇" };
+  const GLYPH_COLOURS = { 4: "#b42318", 5: "#d97706" };
   let uid = 0;
 
   function svg(tag, attrs, parent) {
@@ -130,7 +135,8 @@
 
   /**
    * A heat map of z over x × y (cells in grid order), hatched where `attenuating`, band
-   * edges marked, irregular (×), unsettled (□) and failed (✖) points marked.
+   * edges marked, irregular (×), may-be-transient (◇), unsettled (□) and failed (✖) points
+   * marked.
    */
   function heatmap(el, spec) {
     const xs = spec.x.values, ys = spec.y ? spec.y.values : [null];
@@ -168,7 +174,7 @@
         }
         const o = spec.outcome ? spec.outcome[j][i] : null;
         const g = GLYPHS[o];
-        if (g) text(glyphs, x + cw / 2, y + rowH / 2, g, { fill: o === 4 ? "#b42318" : "#111" });
+        if (g) text(glyphs, x + cw / 2, y + rowH / 2, g, { fill: GLYPH_COLOURS[o] || "#111" });
       }
     }
     root.setAttribute("data-points", count);
@@ -314,7 +320,7 @@
           if (o === 4) text(marks, X(xs[i]), M.t + ph - 8, GLYPHS[4], { fill: "#b42318" });
           return;
         }
-        if (GLYPHS[o]) text(marks, X(xs[i]), Y(v), GLYPHS[o], { fill: s.color });
+        if (GLYPHS[o]) text(marks, X(xs[i]), Y(v), GLYPHS[o], { fill: GLYPH_COLOURS[o] || s.color });
         else if (xs.length <= 120 && !s.dashed) svg("circle", { cx: X(xs[i]), cy: Y(v), r: 2.2, fill: s.color }, marks);
       });
     });
