@@ -114,11 +114,16 @@ def solver_key(solver: Mapping[str, Any]) -> str:
 
 
 @functools.cache
+def _off_pin() -> str:
+    """``""`` on the pinned CPU targets, else ``@<target>`` (asked once per process)."""
+    return "" if on_pinned_target() else f"@{target_label()}"
+
+
 def key_version() -> str:
     """The solver version a point's key hashes: ``SOLVER_VERSION`` where this process (and so
     every worker it lets compute, ``worker.cpu.check_target``) runs the pinned CPU targets,
     else ``SOLVER_VERSION@<target>`` (``worker.cpu.target_label``)."""
-    return SOLVER_VERSION if on_pinned_target() else f"{SOLVER_VERSION}@{target_label()}"
+    return SOLVER_VERSION + _off_pin()
 
 
 def point_key(
