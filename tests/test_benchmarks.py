@@ -513,3 +513,21 @@ def test_batch_cuts_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) ->
         with pytest.raises(SystemExit) as exc:
             bc.main(argv)
         assert exc.value.code == 2 and said in capsys.readouterr().err
+
+
+def test_irregular_error_bars_draws_a_seeded_stream_and_tabulates_by_class() -> None:
+    mod = _load("irregular_error_bars")
+    stream = mod.cells(3, 0.5)
+    first = [next(stream) for _ in range(60)]
+    again = mod.cells(3, 0.5)
+    assert [c for c, _, _ in first] == [next(again)[0] for _ in range(60)]  # seeded
+    undamped = [p for _, _, p in first if p.xi == 0.0]
+    assert 15 <= len(undamped) <= 45 and all(p.beam_xi == 0.0 for p in undamped)
+    assert all('"xi": 0.0' in c for c, _, p in first if p.xi == 0.0)
+    row = dict(coupling="paper", damped=True, xi=0.002, untrusted=False, transient_note=False,
+               long_outcome="irregular", z=1.5)  # fmt: skip
+    rows = [row, {**row, "z": 2.5}, {**row, "damped": False, "xi": 0.0, "z": math.inf}]
+    lines = mod.table(rows)
+    assert "| all | 3 | 1 of 3 (33 %) | 2 of 3 (67 %) | 0 |" in lines
+    assert "| paper, undamped | 1 | 0 of 1 (0 %) | 0 of 1 (0 %) | 0 |" in lines
+    assert "| damped, ξ 0.001–0.003 | 2 | 1 of 2 (50 %) | 2 of 2 (100 %) | 0 |" in lines
