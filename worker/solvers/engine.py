@@ -27,9 +27,10 @@ is proven:
     Cycle-by-cycle statistics: Γ of the mean over periods of each period's half-range
     (max s − min s)/2; the initial transient is cut by the MSER rule; the point ends when the
     standard error of Γ (batch means, batches doubled until their means decorrelate) is below
-    ``stat_tol_db`` over at least ``MIN_STATIONARY`` periods, the batch means show no trend,
-    and impacts are still happening in the last quarter of the final window. Where the error
-    bar cannot be trusted (undamped, intermittent, almost periodic) the reason says so.
+    ``stat_tol_db`` over at least ``MIN_STATIONARY`` periods (or a quarter of a shorter budget),
+    the batch means show no trend, and impacts are still happening in the last quarter of the
+    final window. Where the error bar cannot be trusted (undamped, intermittent, almost
+    periodic) the reason says so.
 ``unsettled``
     The period budget ran out first; the numbers are kept and labelled, never called irregular.
 ``failed``
@@ -99,8 +100,8 @@ TRANSIENT_NOTE = "this irregular motion may be transient"
 # ... and where its standard error cannot be trusted (``_Engine._distrust``)
 UNTRUSTED_NOTE = "its standard error cannot be trusted"
 MIN_WINDOWS = 8  # windows measured (harmonics, θ_eff) before the earliest irregular claim
-# Stationary periods an irregular claim rests on at the fewest (measured from period 100 with the
-# default budget and window: the earliest claim comes at period 300)
+# Stationary periods an irregular claim rests on at the fewest, or a quarter of a shorter budget
+# (measured from period 100 with the default budget and window: no claim before period 300)
 MIN_STATIONARY = 200
 MSER_BATCH = 5  # periods per batch of the MSER rule (MSER-5): the transient cut is a multiple
 MSER_KEEP = 10  # batches the MSER rule leaves at the fewest (its statistic is noise over fewer)
@@ -1582,9 +1583,14 @@ class _Engine:
         means that decorrelated and halves that agree (a longer run may mend those)."""
         st = self.windows.stats()
         se = _se_db(st)
-        return (se is not None and st.n >= MIN_STATIONARY and se <= self.s.stat_tol_db
+        return (se is not None and st.n >= self._min_stationary() and se <= self.s.stat_tol_db
                 and st.trend <= MAX_TREND and (final or st.steady)
                 and self._converging() == 0 and self._approaching() is None)  # fmt: skip
+
+    def _min_stationary(self) -> int:
+        """Stationary periods an irregular claim needs: ``MIN_STATIONARY``, or a quarter of a
+        budget too short for that."""
+        return min(MIN_STATIONARY, self.s.max_periods // 4)
 
     def _distrust(self, st: SeriesStats) -> str:
         """Why the standard error of these statistics cannot be trusted ("" if it can): the
@@ -1699,8 +1705,8 @@ class _Engine:
             return what + ": impacts stopped inside the final window (a transient)"
         st = win.stats()
         se = _se_db(st)
-        if se is None or st.n < MIN_STATIONARY:
-            return what + f" with {st.n} stationary periods (< {MIN_STATIONARY})"
+        if se is None or st.n < self._min_stationary():
+            return what + f" with {st.n} stationary periods (< {self._min_stationary()})"
         if st.trend > MAX_TREND:
             return what + f": Γ still drifts (trend t = {st.trend:.3g}): a slow transient"
         p = self._converging()
