@@ -316,6 +316,12 @@ def test_a_slow_modulation_is_not_taken_for_decorrelated_batches():
     y = 1.0 + 0.01 * np.sin(2 * np.pi * k / 900.0) + 1e-4 * rng.normal(size=k.size)
     st = series_stats(y)
     assert not st.decorrelated and st.batches >= engine.MIN_BATCHES
+    # a pattern that repeats every 3 periods under noise: almost periodic, at lag 3; independent
+    # values are not
+    pattern = np.tile([1.0, 1.2, 0.9], 200) + 0.01 * rng.normal(size=600)
+    st = series_stats(pattern)
+    assert st.repeat == 3 and st.closeness < engine.ALMOST_PERIODIC
+    assert series_stats(1.0 + 0.1 * rng.normal(size=600)).closeness > 0.8
 
 
 def test_the_budget_an_unsettled_error_needs_is_where_that_error_is_reached():

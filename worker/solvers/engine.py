@@ -114,7 +114,8 @@ MAX_TREND = 3.0  # t-statistic of the batch means' trend above which Γ is still
 MAX_HALVES = 4.0  # t-statistic of the two halves' difference above which a response is intermittent
 # A stationary series whose values repeat every q <= measure.MAX_PERIOD periods to within this
 # fraction of their spread (RMS of y_k - y_{k-q} over √2 times their standard deviation, 1 for
-# independent values; the lag-q autocorrelation above 0.99) is an almost periodic response
+# independent values; the lag-q autocorrelation above 0.99) is an almost periodic response:
+# its mean moves with slow modulations and changes of level that its record may not show
 ALMOST_PERIODIC = 0.1
 RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
 # An irregular claim also waits while the p-spaced differences of the samples have shrunk at
@@ -385,9 +386,10 @@ def _batch_size(z, limit, min_batches, max_lag):
 
 @njit(cache=True, nogil=True)
 def _repeat(z, max_q):
-    """The lag q in 1…max_q at which the values of ``z`` come closest to repeating, and how
-    close: the RMS of z_k - z_{k-q} over √2 times the standard deviation of z (1 for
-    independent values, 0 for a series of period q). Lags up to half the series."""
+    """How close the values of ``z`` come to repeating at a lag q in 1…max_q (up to half the
+    series): the smallest RMS of z_k - z_{k-q} over √2 times the standard deviation of z (1 for
+    independent values, 0 for a series of period q), and the shortest lag within a tenth of it
+    (not a multiple of it that noise made closer)."""
     m = len(z)
     mean = 0.0
     for i in range(m):
@@ -397,19 +399,21 @@ def _repeat(z, max_q):
     for i in range(m):
         var += (z[i] - mean) ** 2
     var /= m
-    best = 1.0
-    q_best = 0
     if var <= 0.0:
         return 1, 0.0
-    for q in range(1, min(max_q, m // 2) + 1):
+    top = min(max_q, m // 2)
+    ratios = np.ones(top + 1)
+    best = 1.0
+    for q in range(1, top + 1):
         acc = 0.0
         for i in range(q, m):
             acc += (z[i] - z[i - q]) ** 2
-        ratio = math.sqrt(acc / (m - q) / (2.0 * var))
-        if ratio < best:
-            best = ratio
-            q_best = q
-    return q_best, best
+        ratios[q] = math.sqrt(acc / (m - q) / (2.0 * var))
+        best = min(best, ratios[q])
+    for q in range(1, top + 1):
+        if ratios[q] <= 1.1 * best:
+            return q, best
+    return 0, best
 
 
 @dataclass(frozen=True)
@@ -1607,9 +1611,9 @@ class _Engine:
                     f"periods ({st.batches} batches): a slow modulation (almost periodic or "
                     "intermittent)")  # fmt: skip
         if st.closeness < ALMOST_PERIODIC:
-            return (f"its per-period amplitudes repeat every {st.repeat} periods to within "
-                    f"{st.closeness:.2g} of their spread: an almost periodic response, whose "
-                    "slow changes its record may not show")  # fmt: skip
+            return (f"its per-period amplitudes nearly repeat every {st.repeat} periods (their "
+                    f"differences {st.closeness:.2g} of those of independent values): an almost "
+                    "periodic response, whose slow changes its record may not show")  # fmt: skip
         if st.halves > MAX_HALVES:
             return (f"the two halves of its {st.n} stationary periods differ by {st.halves:.3g} "
                     "standard errors: an intermittent response")  # fmt: skip
