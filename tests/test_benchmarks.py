@@ -97,11 +97,11 @@ def test_irregular_budget_reruns_only_the_noted_claims_with_a_transient_guard(
     paper = dict(coupling="paper", modes=5, xi=0.05, sigma=0.05, gamma_s=1.0)
     settings = mod.SolverSettings()
     found = []
-    # Figure 5's θ 0.5, gap 0.3, γ_r 4.68 (transient chaos, then the impact-free response:
+    # Figure 5's θ 0.5, gap 0.3, γ_r 5.22 (transient chaos, then the impact-free response:
     # noted wherever it is claimed irregular) and θ 0.1, gap 0.1, γ_r 0.48 (irregular, its
     # impact-free response 19 % past the stops: never noted). How long the chaos lasts depends
     # on rounding, so the rerun's outcome is read, not pinned.
-    for case, kw in (("dies out", dict(theta=0.5, g1=0.3, g2=0.3, gamma_r=4.68)),
+    for case, kw in (("dies out", dict(theta=0.5, g1=0.3, g2=0.3, gamma_r=5.22)),
                      ("no note", dict(theta=0.1, g1=0.1, g2=0.1, gamma_r=0.48))):  # fmt: skip
         p = mod.CellParams(**paper, **kw)
         r = mod.simulate_point(p, settings)
@@ -126,7 +126,7 @@ def test_irregular_budget_reruns_only_the_noted_claims_with_a_transient_guard(
     assert f"**Settled: {settled}** ({settled} on the impact-free response, 0 on an orbit)" in text
     assert f"Still irregular: {sum(r['long_outcome'] == 'irregular' for r in rows)}" in text
     if rows:
-        assert "| dies out | 4.680 |" in text
+        assert "| dies out | 5.220 |" in text
     # a guard no later than the points' own earliest claim would change nothing
     with pytest.raises(SystemExit) as exc:
         mod.main(["--points", "2", "--transient-guard", "250"])
@@ -527,3 +527,21 @@ def test_batch_cuts_refuses_bad_arguments(capsys: pytest.CaptureFixture[str]) ->
         with pytest.raises(SystemExit) as exc:
             bc.main(argv)
         assert exc.value.code == 2 and said in capsys.readouterr().err
+
+
+def test_irregular_error_bars_draws_a_seeded_stream_and_tabulates_by_class() -> None:
+    mod = _load("irregular_error_bars")
+    stream = mod.cells(3, 0.5)
+    first = [next(stream) for _ in range(60)]
+    again = mod.cells(3, 0.5)
+    assert [c for c, _, _ in first] == [next(again)[0] for _ in range(60)]  # seeded
+    undamped = [p for _, _, p in first if p.xi == 0.0]
+    assert 15 <= len(undamped) <= 45 and all(p.beam_xi == 0.0 for p in undamped)
+    assert all('"xi": 0.0' in c for c, _, p in first if p.xi == 0.0)
+    row = dict(coupling="paper", damped=True, xi=0.002, untrusted=False, transient_note=False,
+               long_outcome="irregular", z=1.5)  # fmt: skip
+    rows = [row, {**row, "z": 2.5}, {**row, "damped": False, "xi": 0.0, "z": math.inf}]
+    lines = mod.table(rows)
+    assert "| all | 3 | 1 of 3 (33 %) | 2 of 3 (67 %) | 0 |" in lines
+    assert "| paper, undamped | 1 | 0 of 1 (0 %) | 0 of 1 (0 %) | 0 |" in lines
+    assert "| damped, ξ 0.001–0.003 | 2 | 1 of 2 (50 %) | 2 of 2 (100 %) | 0 |" in lines

@@ -120,11 +120,15 @@ def test_below_theta_one_half_no_effective_mass_is_negative() -> None:
 
 def test_high_frequency_curves_coincide_with_the_impact_free_line() -> None:
     # Section 4.2: beyond the last impacts the gap no longer matters (Figure 5(b): γ_r 4,
-    # g̃ 0.5 and 1 alike).
+    # g̃ 0.5 and 1 alike). At γ_r 5.9, g̃ 0.1 chaos beside the admissible impact-free response
+    # dies out after ~415 periods, and may be claimed (with the may-be-transient note) before:
+    # such claims wait for the transient guard (the shipped study's budget of 2,500 periods
+    # puts its earliest claim later anyway)
+    guard = SolverSettings(transient_guard=1000)
     for g_r, gaps in ((5.9, GAPS), (4.0, (0.5, 1.0))):
         lin = linear_transmittance_db(CellParams(**CELL, gamma_r=g_r, g1=1.0, g2=1.0))
         for gap in gaps:
-            r = point(g_r, gap)
+            r = simulate_point(CellParams(**CELL, gamma_r=g_r, g1=gap, g2=gap), guard)
             assert r.outcome == "linear", (g_r, gap)
             assert r.transmittance_db == pytest.approx(lin, abs=1e-9)
 

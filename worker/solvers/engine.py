@@ -24,10 +24,13 @@ is proven:
     and the check at most triples the point's cost (``_measure_orbit``). Where no radius is
     computed, none is reported: no estimate stands in.
 ``irregular``
-    Window statistics: Γ over each window of ``window`` periods; the initial transient is cut
-    by the MSER rule; the point ends when the standard error of the mean Γ (batch means with an
-    AR(1) correction) is below ``stat_tol_db`` over at least ``MIN_WINDOWS`` windows, and
-    impacts are still happening in the last quarter of the final window.
+    Cycle-by-cycle statistics: Γ of the mean over periods of each period's half-range
+    (max s − min s)/2; the initial transient is cut by the MSER rule; the point ends when the
+    standard error of Γ (batch means, batches doubled until their means decorrelate) is below
+    ``stat_tol_db`` over at least ``MIN_STATIONARY`` periods (or a quarter of a shorter budget),
+    the batch means show no trend, and impacts are still happening in the last quarter of the
+    final window. Where the error bar cannot be trusted (undamped, intermittent, almost
+    periodic) the reason says so.
 ``unsettled``
     The period budget ran out first; the numbers are kept and labelled, never called irregular.
 ``failed``
@@ -82,17 +85,39 @@ __all__ = [
     "compile_helpers",
     "MIN_WINDOWS",
     "TRANSIENT_NOTE",
+    "SeriesStats",
+    "UNTRUSTED_NOTE",
     "budget_for_error",
-    "few_windows_factor",
+    "few_batches_factor",
     "linear_reference_db",
-    "mser_stats",
+    "mser_start",
+    "series_stats",
     "rre",
     "run_point",
 ]
 
 DIVERGENCE_FACTOR = 1e6  # |x|∞ beyond this times the natural scale is divergence
-MIN_WINDOWS = 8  # windows of statistics before an irregular response may be reported
-MAX_TREND = 3.0  # t-statistic of the windows' trend above which Γ is still drifting
+# Part of an irregular point's reason where its standard error cannot be trusted
+# (``_Engine._distrust``); ``TRANSIENT_NOTE`` where the motion may be transient.
+UNTRUSTED_NOTE = "its standard error cannot be trusted"
+MIN_WINDOWS = 8  # windows measured (harmonics, θ_eff) before the earliest irregular claim
+# Stationary periods an irregular claim rests on at the fewest, or a quarter of a shorter budget
+# (measured from period 100 with the default budget and window: no claim before period 300)
+MIN_STATIONARY = 200
+MSER_BATCH = 5  # periods per batch of the MSER rule (MSER-5): the transient cut is a multiple
+MSER_KEEP = 10  # batches the MSER rule leaves at the fewest (its statistic is noise over fewer)
+MIN_BATCHES = 10  # batch means a standard error rests on at the fewest (when they stay correlated)
+# The lag-1 autocorrelation of k batch means counts as insignificant below DECORRELATED/√k (its
+# spread for independent means is 1/√k), those at lags up to measure.MAX_PERIOD periods below
+# (DECORRELATED + 1)/√k (many lags: a stricter bound): batches are doubled until they are
+DECORRELATED = 2.0
+MAX_TREND = 3.0  # t-statistic of the batch means' trend above which Γ is still drifting
+MAX_HALVES = 4.0  # t-statistic of the two halves' difference above which a response is intermittent
+# A stationary series whose values repeat every q <= measure.MAX_PERIOD periods to within this
+# fraction of their spread (RMS of y_k - y_{k-q} over √2 times their standard deviation, 1 for
+# independent values; the lag-q autocorrelation above 0.99) is an almost periodic response:
+# its mean moves with slow modulations and changes of level that its record may not show
+ALMOST_PERIODIC = 0.1
 RECENT = 64  # stroboscopic samples the engine keeps for extrapolation
 # An irregular claim also waits while the p-spaced differences of the samples have shrunk at
 # each of the last SHRINK_RETURNS returns and SHRINK_FACTOR-fold over them (_shrinking_p); the
@@ -236,13 +261,13 @@ def _rre(X, xs):
 
 def compile_helpers() -> None:
     """Compile the engine's own compiled helpers into numba's on-disk cache if they are not
-    there. A point calls them only once it extrapolates an orbit, so a worker loads them then
+    there. A point calls most of them only once it extrapolates an orbit (the statistics' two once
+    it may be irregular), so a worker loads them then
     (~0.35 s); ``simulate.warm_up`` calls this so that on a fresh cache the process that warms up
     compiles them once (~12 s on this machine), not every worker at its first periodic point."""
-    if all(
-        on_disk(f)
-        for f in (_rre, _converging_p, _shrinking_p, _creeping_p, _divisors_steady, _max_diff)
-    ):
+    helpers = (_rre, _converging_p, _shrinking_p, _creeping_p, _divisors_steady, _max_diff,
+               _mser_start, _batch_size, _repeat)  # fmt: skip
+    if all(on_disk(f) for f in helpers):
         return
     X = np.array([[0.0, 1.0], [1.0, 0.5], [1.5, 0.25], [1.75, 0.125]])
     rre(X)
@@ -251,80 +276,223 @@ def compile_helpers() -> None:
     _creeping_p(X, 4, 1)
     _divisors_steady(X, 4, 2, 1e-6, 1e-9)
     _max_diff(X[0], X[1])
+    series_stats(X[:, 0])
 
 
 @functools.cache
-def few_windows_factor(m: int) -> float:
-    """How much wider a standard error resting on m window values is reported:
-    ``t_{m-1}(0.99865) / 3`` (at least 1), so that ±3 standard errors is the 99.73 % interval
-    of Student's t with m - 1 degrees of freedom, as it is of the normal law for many
-    windows (m = 8: 1.51; m = 20: 1.15; m = 100: 1.03)."""
-    if m < 2:
+def few_batches_factor(k: int) -> float:
+    """How much wider a standard error resting on k batch means is reported:
+    ``t_{k-1}(0.99865) / 3`` (at least 1), so that ±3 standard errors is the 99.73 % interval
+    of Student's t with k - 1 degrees of freedom, as it is of the normal law for many
+    batches (k = 8: 1.51; k = 20: 1.15; k = 100: 1.03)."""
+    if k < 2:
         return 1.0
     # Imported here: scipy costs ~0.4 s of CPU to import, and only an irregular response's
     # statistics need it (not the process that hands out points, nor most points).
     from scipy.special import stdtrit
 
-    return max(1.0, float(stdtrit(m - 1, 0.99865)) / 3.0)
+    return max(1.0, float(stdtrit(k - 1, 0.99865)) / 3.0)
 
 
-def budget_for_error(se: float, tol: float, m: int, d: int, window: int) -> int:
-    """The period budget at which the standard error ``se`` of an irregular Γ, resting on ``m``
-    stationary windows after ``d`` transient ones, would be down to ``tol``: the error falls as
-    ``1/√m`` (batch means), so ``m·(se/tol)²`` windows after the same ``d``, rounded up to a
-    hundred periods. An estimate: on the shipped θ 1 Figure 5 studies' unsettled points it was
-    right about four times in five (which side of 2,500 periods a point ended on)."""
-    windows = m * (se / tol) ** 2 + d
-    return int(math.ceil(windows * window / 100.0)) * 100
+def budget_for_error(se: float, tol: float, n: int, start: int) -> int:
+    """The period budget at which the standard error ``se`` of an irregular Γ, resting on
+    ``n`` stationary periods from period ``start`` on, would be down to ``tol``: the error of a
+    mean falls as ``1/√n``, so ``start + n·(se/tol)²``, rounded up to a hundred periods. An
+    estimate (the batches, and with them the error's own error, change as the span grows)."""
+    return int(math.ceil((start + n * (se / tol) ** 2) / 100.0)) * 100
 
 
-def mser_stats(y: np.ndarray) -> tuple[float, float | None, int, float]:
-    """Mean, standard error, start and trend t-statistic of the stationary part of ``y``.
+def mser_start(y: np.ndarray, batch: int = MSER_BATCH) -> int:
+    """The end of the initial transient of ``y`` by the MSER rule (White's marginal standard
+    error rule): over batches of ``batch`` values, the start ``d`` minimising
+    ``Var(y[d:]) / len(y[d:])``, leaving at least ``MSER_KEEP`` batches; a multiple of
+    ``batch``. A start past the middle says the record is too short for its transient."""
+    return int(_mser_start(np.ascontiguousarray(y, dtype=np.float64), batch, MSER_KEEP))
 
-    The start ``d`` minimises the MSER statistic ``Var(y[d:]) / len(y[d:])`` over the first half
-    (White's marginal standard error rule for the initial transient). The standard error is
-    that of batch means, widened by ``√((1 + r₁)/(1 − r₁))`` for the lag-1 autocorrelation of
-    the window values (``r₁`` clipped to [0, 0.95]) and by :func:`few_windows_factor` for the
-    few windows it rests on (their sample variance is itself uncertain: with 8 windows ±3 of the
-    unwidened errors held only 98 % of the time, and irregular points of the benchmark spectra
-    missed a ten times longer run's mean); ``None`` with fewer than 2 windows. The trend
-    statistic is the least-squares slope of ``y[d:]`` over its standard error (widened for the
-    autocorrelation): a slow transient (a periodic orbit still being approached, a response
-    dying out) has a large one, a stationary irregular response a small one.
+
+@njit(cache=True, nogil=True)
+def _mser_start(y, batch, keep):
+    nb = len(y) // batch
+    if nb < 2:
+        return 0
+    means = np.empty(nb)
+    for j in range(nb):
+        acc = 0.0
+        for i in range(j * batch, (j + 1) * batch):
+            acc += y[i]
+        means[j] = acc / batch
+    s1 = 0.0
+    s2 = 0.0
+    best = np.inf
+    d = 0
+    last = max(nb - keep, nb // 2)
+    for j in range(nb - 1, -1, -1):  # Σ means[j:], Σ means[j:]², from the end
+        s1 += means[j]
+        s2 += means[j] * means[j]
+        if j <= last:
+            cnt = nb - j
+            stat = max(s2 / cnt - (s1 / cnt) ** 2, 0.0) / cnt
+            if stat <= best:  # ties: the earliest start, as argmin
+                best = stat
+                d = j
+    return d * batch
+
+
+@njit(cache=True, nogil=True)
+def _batch_size(z, limit, min_batches, max_lag):
+    """The smallest batch size 1, 2, 4, … at which the k batch means (the newest whole batches
+    of ``z``) look independent: their lag-1 autocorrelation r₁ at most ``limit/√k``, and at
+    every lag up to ``max_lag`` values (a pattern repeating every few values, an almost
+    periodic response) at most ``(limit + 1)/√k``; or the largest size that leaves
+    ``min_batches``. Returns (size, r₁, whether they look independent)."""
+    m = len(z)
+    b = 1
+    means = np.empty(m)
+    while True:
+        k = m // b
+        off = m - k * b
+        mean = 0.0
+        for j in range(k):
+            acc = 0.0
+            for i in range(off + j * b, off + (j + 1) * b):
+                acc += z[i]
+            means[j] = acc / b
+            mean += means[j]
+        mean /= k
+        ss = 0.0
+        for j in range(k):
+            means[j] -= mean
+            ss += means[j] * means[j]
+        r1 = 0.0
+        ok = True
+        if ss > 0.0:
+            for lag in range(1, min(max(1, max_lag // b), k - 1) + 1):
+                acc = 0.0
+                for j in range(lag, k):
+                    acc += means[j] * means[j - lag]
+                r = acc / ss
+                if lag == 1:
+                    r1 = r
+                    ok = r <= limit / math.sqrt(k)
+                elif r > (limit + 1.0) / math.sqrt(k):
+                    ok = False
+                if not ok:
+                    break
+        if ok:
+            return b, r1, True
+        if m // (2 * b) < min_batches:
+            return b, r1, False
+        b *= 2
+
+
+@njit(cache=True, nogil=True)
+def _repeat(z, max_q):
+    """How close the values of ``z`` come to repeating at a lag q in 1…max_q (up to half the
+    series): the smallest RMS of z_k - z_{k-q} over √2 times the standard deviation of z (1 for
+    independent values, 0 for a series of period q), and the shortest lag within a tenth of it
+    (not a multiple of it that noise made closer)."""
+    m = len(z)
+    mean = 0.0
+    for i in range(m):
+        mean += z[i]
+    mean /= m
+    var = 0.0
+    for i in range(m):
+        var += (z[i] - mean) ** 2
+    var /= m
+    if var <= 0.0:
+        return 1, 0.0
+    top = min(max_q, m // 2)
+    ratios = np.ones(top + 1)
+    best = 1.0
+    for q in range(1, top + 1):
+        acc = 0.0
+        for i in range(q, m):
+            acc += (z[i] - z[i - q]) ** 2
+        ratios[q] = math.sqrt(acc / (m - q) / (2.0 * var))
+        best = min(best, ratios[q])
+    for q in range(1, top + 1):
+        if ratios[q] <= 1.1 * best:
+            return q, best
+    return 0, best
+
+
+@dataclass(frozen=True)
+class SeriesStats:
+    """The mean of a stationary series and how far to trust it (:func:`series_stats`)."""
+
+    mean: float  # over the stationary part, y[start:]
+    se: float | None  # its standard error; None with fewer than 2 values
+    start: int  # the MSER cut: the first stationary value
+    n: int  # stationary values, len(y) - start
+    batch: int  # values per batch of the batch means (the newest whole batches)
+    batches: int
+    decorrelated: bool  # the batch means' lag-1 autocorrelation is insignificant
+    trend: float  # t-statistic of the batch means' least-squares slope
+    halves: float  # t-statistic of the difference between the two halves' means
+    warmed_up: bool  # the transient cut lies in the first half (else the record is too short)
+    repeat: int  # the lag (≤ measure.MAX_PERIOD) at which the values come closest to repeating
+    closeness: float  # how close (:func:`_repeat`): below ALMOST_PERIODIC, almost periodic
+
+    @property
+    def steady(self) -> bool:
+        """Whether a longer record has nothing to mend: the transient is cut in the first half,
+        the batch means decorrelated and the halves agree."""
+        return self.warmed_up and self.decorrelated and self.halves <= MAX_HALVES
+
+
+def series_stats(y: np.ndarray) -> SeriesStats:
+    """Mean and standard error of the stationary part of ``y`` (an irregular response's
+    per-period half-ranges), with what says whether to trust them (docs/solvers.md).
+
+    The initial transient is cut by :func:`mser_start`. The standard error is that of batch
+    means: batches of 1, 2, 4, … values (the newest whole batches of the stationary part)
+    until the lag-1 autocorrelation r₁ of the batch means is below ``DECORRELATED/√k`` for k
+    batches (``decorrelated``), or until a further doubling would leave fewer than
+    ``MIN_BATCHES``. It is widened by ``√((1 + r₁)/(1 − r₁))`` for the correlation left
+    (r₁ clipped to [0, 0.95]) and by :func:`few_batches_factor` for the few batches it may
+    rest on (their sample variance is itself uncertain). ``trend`` is the batch means' least-
+    squares slope over its standard error, ``halves`` the difference between the means of their
+    first and second halves over its standard error (both widened for the correlation left):
+    a slow transient has a large trend, an intermittent response large halves.
     """
-    n = len(y)
-    if n == 0:
-        return math.nan, None, 0, 0.0
-    if n == 1:
-        return float(y[0]), None, 0, 0.0
-    rev = y[::-1]
-    s1 = np.cumsum(rev)[::-1]  # Σ y[d:]
-    s2 = np.cumsum(rev * rev)[::-1]
-    cnt = np.arange(n, 0, -1)  # n - d
-    var = np.maximum(s2 / cnt - (s1 / cnt) ** 2, 0.0)
-    half = n // 2 + 1
-    d = int(np.argmin(var[:half] / cnt[:half]))
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    if len(y) == 0:
+        return SeriesStats(math.nan, None, 0, 0, 1, 0, False, 0.0, 0.0, False, 0, 1.0)
+    d = mser_start(y)
     z = y[d:]
     m = len(z)
     mean = float(z.mean())
     if m < 2:
-        return mean, None, d, 0.0
-    dev = z - mean
+        return SeriesStats(mean, None, d, m, 1, m, False, 0.0, 0.0, 2 * d <= len(y), 0, 1.0)
+    b, r1, decorrelated = _batch_size(z, DECORRELATED, MIN_BATCHES, ms.MAX_PERIOD)
+    k = m // b
+    means = z[m - k * b :].reshape(k, b).mean(axis=1)
+    dev = means - means.mean()
     ss = float(dev @ dev)
-    sd = math.sqrt(ss / (m - 1))
-    r1 = float(dev[1:] @ dev[:-1]) / ss if ss > 0.0 else 0.0
     r1 = min(max(r1, 0.0), 0.95)
     inflate = math.sqrt((1.0 + r1) / (1.0 - r1))
-    se = sd / math.sqrt(m) * inflate * few_windows_factor(m)
-    trend = 0.0
-    if m >= 3:
-        i = np.arange(m) - (m - 1) / 2.0
+    sd = math.sqrt(ss / (k - 1))
+    se = sd / math.sqrt(k) * inflate * few_batches_factor(k)
+    trend = halves = 0.0
+    if k >= 3:
+        i = np.arange(k) - (k - 1) / 2.0
         slope = float(i @ dev) / float(i @ i)
         resid = dev - slope * i
-        s_res = math.sqrt(float(resid @ resid) / (m - 2))
+        s_res = math.sqrt(float(resid @ resid) / (k - 2))
         se_slope = s_res / math.sqrt(float(i @ i)) * inflate
         trend = abs(slope) / se_slope if se_slope > 0.0 else (math.inf if slope else 0.0)
-    return mean, se, d, trend
+    if k >= 4:
+        h = k // 2
+        a, c = means[:h], means[k - h :]
+        pooled = math.sqrt((float(((a - a.mean()) ** 2).sum()) + float(((c - c.mean()) ** 2).sum()))
+                           / (2 * h - 2))  # fmt: skip
+        se_diff = pooled * math.sqrt(2.0 / h) * inflate
+        diff = abs(float(a.mean() - c.mean()))
+        halves = diff / se_diff if se_diff > 0.0 else (math.inf if diff else 0.0)
+    q, closeness = _repeat(z, ms.MAX_PERIOD)
+    return SeriesStats(mean, se, d, m, b, k, decorrelated, trend, halves, 2 * d <= len(y), q,
+                       closeness)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- windows
@@ -686,10 +854,10 @@ def _converging_p(r: np.ndarray, max_period: int) -> int:
 
 @dataclass
 class _Windows:
-    """Per-window aggregates of the period rows (the irregular statistics)."""
+    """Per-window aggregates of the period rows, and every period's half-range of s (the
+    irregular statistics)."""
 
     window: int
-    gamma: list[float] = field(default_factory=list)
     impacts: list[tuple[float, float]] = field(default_factory=list)
     peak: list[float] = field(default_factory=list)
     harm: list[np.ndarray] = field(default_factory=list)  # S_re, S_im, Sb_re, Sb_im, VV, VB
@@ -698,6 +866,10 @@ class _Windows:
     cur: np.ndarray = field(default_factory=lambda: np.zeros(ms.ROW))
     count: int = 0
     all_measured: bool = True
+    # (max s − min s)/2 of every period from the start, the first ``periods`` entries valid
+    half_range: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    periods: int = 0
+    first_measured: int = -1  # the first period measured (exact extrema), -1 none yet
 
     def __post_init__(self) -> None:
         self._open()
@@ -710,19 +882,28 @@ class _Windows:
         self.count = 0
         self.all_measured = True
 
-    def add(self, rows: np.ndarray, base_scale: float) -> None:
+    def add(self, rows: np.ndarray) -> None:
         """Add a batch of period rows (a batch never crosses a window boundary)."""
-        if not len(rows):
+        n = len(rows)
+        if not n:
             return
+        if self.periods + n > len(self.half_range):
+            grown = np.zeros(max(2 * len(self.half_range), self.periods + n))
+            grown[: self.periods] = self.half_range[: self.periods]
+            self.half_range = grown
+        self.half_range[self.periods : self.periods + n] = 0.5 * (
+            rows[:, ms.M_SMAX] - rows[:, ms.M_SMIN]
+        )
+        if self.first_measured < 0 and rows[-1, ms.M_MEASURED] != 0.0:
+            self.first_measured = self.periods + int(np.argmax(rows[:, ms.M_MEASURED] != 0.0))
+        self.periods += n
         self.all_measured &= bool(_fold_rows(rows, self.cur, self.count))
-        self.count += len(rows)
+        self.count += n
         if self.count >= self.window:
-            self._close(base_scale)
+            self._close()
 
-    def _close(self, base_scale: float) -> None:
+    def _close(self) -> None:
         c = self.cur
-        amp = 0.5 * (c[ms.M_SMAX] - c[ms.M_SMIN])
-        self.gamma.append(20.0 * math.log10(amp / base_scale) if amp > 0.0 else -math.inf)
         self.impacts.append((c[ms.M_IMP1], c[ms.M_IMP2]))
         self.peak.append(c[ms.M_PEAK])
         self.harm.append(c[ms.M_S_RE : ms.M_VB + 1].copy())
@@ -731,7 +912,31 @@ class _Windows:
         self._open()
 
     def __len__(self) -> int:
-        return len(self.gamma)
+        return len(self.impacts)
+
+    @property
+    def first(self) -> int:
+        """The first period the statistics use: the first measured one (its extrema exact,
+        where unmeasured periods have those of an interpolant), or the first of all while
+        fewer than two periods are measured."""
+        f = self.first_measured
+        return f if 0 <= f <= self.periods - 2 else 0
+
+    def stats(self) -> SeriesStats:
+        """:func:`series_stats` of the half-ranges of the periods from :attr:`first` on."""
+        return series_stats(self.half_range[self.first : self.periods])
+
+
+def _db(amplitude: float, base_scale: float) -> float:
+    """Γ of a mean half-range (-inf for none)."""
+    return 20.0 * math.log10(amplitude / base_scale) if amplitude > 0.0 else -math.inf
+
+
+def _se_db(st: SeriesStats) -> float | None:
+    """The standard error of Γ = 20 log10(mean/θγ_s) (dB), to first order."""
+    if st.se is None or not st.mean > 0.0:
+        return None
+    return 20.0 / math.log(10.0) * st.se / st.mean
 
 
 # --------------------------------------------------------------------------- the engine
@@ -837,7 +1042,7 @@ class _Engine:
         self.work["coarse_steps"] += int(coarse)
         if not main or n == 0:
             return
-        self.windows.add(rows, self.p.base_scale)
+        self.windows.add(rows)
         _push_samples(self.history, samples)
         self.nhistory = min(HISTORY, self.nhistory + n)
         _push_recent(self.recent_imp, self.recent_reg, rows)
@@ -1370,7 +1575,7 @@ class _Engine:
         win = self.windows
         # Transient chaos can look stationary for hundreds of periods before it settles on an
         # orbit: an irregular response is claimed only after a quarter of the budget.
-        if len(win) < MIN_WINDOWS or self.period < self.s.max_periods // 4:
+        if not len(win) or self.period < self.s.max_periods // 4:
             return False
         guard = self.s.transient_guard
         if guard is not None and self.period < guard and self._linear_admissible():
@@ -1379,14 +1584,46 @@ class _Engine:
             return False
         return self._stats_converged()
 
-    def _stats_converged(self) -> bool:
-        """Enough stationary windows, no trend, standard error within the tolerance, and the
-        stroboscopic sequence not converging to an orbit."""
-        win = self.windows
-        mean, se, d, trend = mser_stats(np.array(win.gamma))
-        return (se is not None and len(win) - d >= MIN_WINDOWS and se <= self.s.stat_tol_db
-                and trend <= MAX_TREND and self._converging() == 0
-                and self._approaching() is None)  # fmt: skip
+    def _stats_converged(self, final: bool = False) -> bool:
+        """Enough stationary periods, no trend, a standard error within the tolerance, and the
+        stroboscopic sequence not converging to an orbit; before the budget's end also batch
+        means that decorrelated and halves that agree (a longer run may mend those)."""
+        st = self.windows.stats()
+        se = _se_db(st)
+        return (se is not None and st.n >= self._min_stationary() and se <= self.s.stat_tol_db
+                and st.trend <= MAX_TREND and (final or st.steady)
+                and self._converging() == 0 and self._approaching() is None)  # fmt: skip
+
+    def _min_stationary(self) -> int:
+        """Stationary periods an irregular claim needs: ``MIN_STATIONARY``, or a quarter of a
+        budget too short for that."""
+        return min(MIN_STATIONARY, self.s.max_periods // 4)
+
+    def _distrust(self, st: SeriesStats) -> str:
+        """Why the standard error of these statistics cannot be trusted ("" if it can): the
+        transient cut lies past the middle of the record, the batch means never decorrelated
+        (a modulation slower than a tenth of the span), the values nearly repeat (an almost
+        periodic response), the halves disagree (intermittency), or the cell is undamped
+        (energy leaves only at impacts: the motion may change its character over far longer
+        spans than any run; docs/accuracy.md)."""
+        if not st.warmed_up:
+            return (f"the initial transient takes more than half of the {st.start + st.n} "
+                    "periods measured (the MSER rule): the record may be too short")  # fmt: skip
+        if not st.decorrelated:
+            return (f"its per-period amplitudes are still correlated over batches of {st.batch} "
+                    f"periods ({st.batches} batches): a slow modulation (almost periodic or "
+                    "intermittent)")  # fmt: skip
+        if st.closeness < ALMOST_PERIODIC:
+            return (f"its per-period amplitudes nearly repeat every {st.repeat} periods (their "
+                    f"differences {st.closeness:.2g} of those of independent values): an almost "
+                    "periodic response, whose slow changes its record may not show")  # fmt: skip
+        if st.halves > MAX_HALVES:
+            return (f"the two halves of its {st.n} stationary periods differ by {st.halves:.3g} "
+                    "standard errors: an intermittent response")  # fmt: skip
+        if not self.tail.damped:
+            return ("the cell is undamped: energy leaves it only at impacts, and its motion may "
+                    "change its character over far longer spans than this run")  # fmt: skip
+        return ""
 
     def _converging(self) -> int:
         """The smallest p whose p-spaced differences of the stroboscopic samples have shrunk a
@@ -1410,17 +1647,20 @@ class _Engine:
         return tail.steady is not None and tail.damped and tail.amp < tail.gate
 
     def _irregular(self) -> tuple[str, str]:
-        """Claim an irregular response. Where the impact-free steady state is admissible too,
-        the motion may be transient chaos that a longer run would see die out: the claim is
-        flagged (``may_be_transient``) and its reason says so."""
+        """Claim an irregular response. Its reason says where its standard error cannot be
+        trusted (``UNTRUSTED_NOTE``); where the impact-free steady state is admissible too, the
+        motion may be transient chaos that a longer run would see die out: the claim is flagged
+        (``may_be_transient``) and its reason says so."""
         self.may_be_transient = self._linear_admissible()
         ss = self.tail.steady
-        if ss is None or not self.may_be_transient:
-            return "irregular", ""
-        return "irregular", (
-            f"the impact-free response (Γ = {ss.transmittance_db:.4g} dB) is admissible here "
-            f"too: {TRANSIENT_NOTE}"
-        )
+        why = self._distrust(self.windows.stats())
+        parts = [f"{UNTRUSTED_NOTE}: {why}" if why else ""]
+        if ss is not None and self.may_be_transient:
+            parts.append(
+                f"the impact-free response (Γ = {ss.transmittance_db:.4g} dB) is admissible "
+                f"here too: {TRANSIENT_NOTE}"
+            )
+        return "irregular", "; ".join(x for x in parts if x)
 
     def _impacts_continue(self) -> bool:
         win = self.windows
@@ -1449,7 +1689,7 @@ class _Engine:
                 f"frequency with ξ = ξ_b = 0): the response grows without bound and no impact "
                 f"limited it within {self.period} periods"
             )
-        if len(self.windows) and self._impacts_continue() and self._stats_converged():
+        if len(self.windows) and self._impacts_continue() and self._stats_converged(final=True):
             return self._irregular()
         return "unsettled", self._unsettled_reason()
 
@@ -1468,11 +1708,12 @@ class _Engine:
             return what + ": no impacts in the final window, but the linear tail is not proven"
         if not self._impacts_continue():
             return what + ": impacts stopped inside the final window (a transient)"
-        mean, se, d, trend = mser_stats(np.array(win.gamma))
-        if se is None or len(win) - d < MIN_WINDOWS:
-            return what + f" with {len(win) - d} stationary windows (< {MIN_WINDOWS})"
-        if trend > MAX_TREND:
-            return what + f": Γ still drifts (trend t = {trend:.3g}): a slow transient"
+        st = win.stats()
+        se = _se_db(st)
+        if se is None or st.n < self._min_stationary():
+            return what + f" with {st.n} stationary periods (< {self._min_stationary()})"
+        if st.trend > MAX_TREND:
+            return what + f": Γ still drifts (trend t = {st.trend:.3g}): a slow transient"
         p = self._converging()
         p = _own_period(self.history, self.nhistory, p) if p else 0
         u = self.passed_unstable
@@ -1482,9 +1723,10 @@ class _Engine:
         if p:
             return what + f" while the response was still converging to a period-{p} orbit"
         tol = self.s.stat_tol_db
-        need = budget_for_error(se, tol, len(win) - d, d, self.s.window)
-        return what + (f": standard error of Γ {se:.3g} dB > {tol:g} dB (it falls as 1/√windows: "
-                       f"about {need:,} periods would reach it; raise max_periods)")  # fmt: skip
+        need = budget_for_error(se, tol, st.n, win.periods - st.n)  # the span ends now
+        return what + (f": standard error of Γ {se:.3g} dB > {tol:g} dB (it falls as "
+                       f"1/√periods: about {need:,} periods would reach it; raise "
+                       "max_periods)")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- results
@@ -1663,21 +1905,23 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
 
 def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
                        kappa: float, theta: float) -> PointResult:  # fmt: skip
-    """Γ, its standard error and the rest from the window statistics (irregular, unsettled)."""
+    """Γ, its standard error and the rest from the per-period statistics (irregular,
+    unsettled)."""
     win = eng.windows
     p = eng.p
     if not len(win):
         return PointResult.failure(eng.s.method, reason or "no window measured", **common)
-    y = np.array(win.gamma)
-    mean, se, d, _ = mser_stats(y)
-    if not math.isfinite(mean):
+    st = win.stats()
+    db = _db(st.mean, p.base_scale)
+    if not math.isfinite(db):
         return PointResult.failure(eng.s.method, "no motion of the outer mass", **common)
-    span = range(d, len(win))
+    # the windows that lie in the stationary span, whole (θ_eff, the peak impulse)
+    span = range(min(-(-(win.first + st.start) // win.window), len(win) - 1), len(win))
     h = sum((win.harm[i] for i in span if win.measured[i]), np.zeros(6))
     imp = win.impacts[-1]
     return PointResult(
-        outcome=outcome, transmittance_db=float(mean), transmittance_db_se=_finite_or_none(se),
-        amplitude=float(p.base_scale * 10.0 ** (mean / 20.0)),
+        outcome=outcome, transmittance_db=db, transmittance_db_se=_finite_or_none(_se_db(st)),
+        amplitude=st.mean,
         theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
         theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
         response_period=0,

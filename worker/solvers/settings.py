@@ -28,7 +28,7 @@ __all__ = [
 ]
 
 # Bumped whenever the numbers a point reports may change: it is part of every study id.
-SOLVER_VERSION = "22"
+SOLVER_VERSION = "23"
 METHODS = ("event", "exponential", "euler")
 DEFAULT_METHOD = "event"
 LCP_SOLVERS = ("closed", "lemke")
@@ -103,8 +103,9 @@ class SolverSettings:
         Relative tolerance of a periodic orbit: the confirmed orbit repeats, and its estimated
         distance to the exact orbit is below this fraction of the state's size.
     window : int
-        Periods per measurement window: an irregular response's Γ is the mean over windows of
-        each window's Γ (docs/solvers.md).
+        Periods per window: an irregular response's statistics are checked at each window's
+        end, and its impacts per period are those of the final window. Its Γ, the cycle-by-cycle
+        mean over periods, does not depend on it (docs/solvers.md).
     stat_tol_db : float
         Standard error of Γ (dB) at which the statistics of an irregular response count as
         converged.
@@ -189,9 +190,9 @@ class PointResult:
     Measured values are ``None`` when the point failed. ``outcome`` says how the point ended
     and what its numbers are: ``linear`` (the closed-form steady state, proven impact-free for
     all future time), ``periodic`` (a confirmed period-``response_period`` orbit with impacts),
-    ``irregular`` (window statistics converged: Γ is a mean with standard error
-    ``transmittance_db_se``), ``unsettled`` (the budget ran out first; numbers kept, not
-    proven) or ``failed`` (``reason`` says why).
+    ``irregular`` (per-period statistics converged: Γ is that of the mean half-range per
+    excitation period, with standard error ``transmittance_db_se``), ``unsettled`` (the
+    budget ran out first; numbers kept, not proven) or ``failed`` (``reason`` says why).
 
     ``transmittance_linear_db`` is Γ_lin, the closed-form Γ of the same cell with the stops
     removed (docs/model.md §7), and ``impact_effect_db`` = Γ − Γ_lin, what the impacts change

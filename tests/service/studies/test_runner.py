@@ -181,11 +181,13 @@ def test_own_cluster_shuts_down_while_the_results_are_collated(tmp_path: Path, m
 
 
 def test_summary_counts_outcomes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # A short budget: some points end irregular, some run out of periods (unsettled).
+    # A short budget and a tight standard error: some points end irregular, some run out of
+    # periods (unsettled).
     study = parse_study(
         {
             "name": "outcomes",
-            "solver": {"steps_per_period": 256, "max_periods": 120, "window": 5},
+            "solver": {"steps_per_period": 256, "max_periods": 120, "window": 5,
+                       "stat_tol_db": 0.05},
             "grid": {"gamma_r": [0.5, 1.0, 2.2, 4.5], "gap": [0.1, 0.5], "theta": 0.3,
                      "sigma": 0.05, "gamma_s": 1.0},
         }
