@@ -32,7 +32,9 @@ every reference; exponential 1e-3 dB (event), 1e-4 dB (linear, pinned); euler 0.
 
 Classification of each run (from the point's ``outcome``): ok-periodic (``periodic`` or
 ``linear`` and agreeing with its reference), ok-irregular (``irregular`` or ``unsettled``, or
-converged where the reference is not or has another period: no pointwise limit), ok-unchecked
+converged where the reference is not or has another period; an irregular run with an irregular
+reference within 4 combined standard errors of it), irregular-apart (both irregular, farther
+apart than that), ok-unchecked
 (converged, no reference), failed-with-reason, disagreeing, silent-divergence (not failed, but Γ
 above 200 dB or the reference diverged: a finite Γ from a diverged state; the goal is none),
 non-finite-record, timeout, crashed.
@@ -73,6 +75,8 @@ import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
 # isort: split
 import numpy as np  # noqa: E402
 
+from service.regression.spec import IrregularCheck  # noqa: E402
+
 BASE = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, g1=0.1, g2=0.1, modes=5)
 METHODS = ("event", "exponential", "euler")  # the default first
 # Stated accuracy of Γ (dB) at converged points, per method and reference (docs/accuracy.md).
@@ -90,6 +94,7 @@ DIVERGED = re.compile(r"diverg|finite|without bound|undamped resonance|secular g
 OUTCOMES = (
     "ok-periodic",
     "ok-irregular",
+    "irregular-apart",
     "ok-unchecked",
     "failed-with-reason",
     "disagreeing",
@@ -98,6 +103,9 @@ OUTCOMES = (
     "timeout",
     "crashed",
 )
+# Irregular runs and their irregular references agree within this many combined standard
+# errors: the nightly suite's default (``IrregularCheck.error_bars``)
+ERROR_BARS = float(IrregularCheck().error_bars or 4.0)
 POINT_FIELDS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling")
 
 
@@ -335,6 +343,19 @@ def _against(method: str, kind: str, db: float, ref_db: float) -> tuple[str, str
     return ("ok-periodic" if d <= TOL[method][kind] else "disagreeing"), f"{kind} |ΔΓ|={d:.3g}"
 
 
+def _irregular_pair(rec, ref_rec) -> tuple[str, str]:
+    """A run that did not settle: where it and its reference are both irregular with error
+    bars, their Γ must agree within ``ERROR_BARS`` combined standard errors, as the nightly
+    suite asks of irregular points (``irregular-apart`` where not)."""
+    se, ref_se = rec.get("transmittance_db_se"), (ref_rec or {}).get("transmittance_db_se")
+    if rec["outcome"] != "irregular" or _ref_state(ref_rec) != "irregular" or not se or not ref_se:
+        return "ok-irregular", f"method {rec['outcome']}"
+    d = abs(rec["transmittance_db"] - ref_rec["transmittance_db"])
+    z = d / math.hypot(se, ref_se)
+    note = f"irregular |ΔΓ|={d:.3g} dB = {z:.2g} combined SE"
+    return ("ok-irregular" if z <= ERROR_BARS else "irregular-apart"), note
+
+
 def classify(method: str, status: str, rec, cf: ClosedForms, ref_rec) -> tuple[str, str]:
     """Classification and a note for one run (see the module docstring)."""
     if status in ("timeout", "crashed"):
@@ -357,7 +378,7 @@ def classify(method: str, status: str, rec, cf: ClosedForms, ref_rec) -> tuple[s
     if not all(isinstance(v, float) and math.isfinite(v) for v in vals):
         return "non-finite-record", "missing value"
     if rec["outcome"] not in ("linear", "periodic"):
-        return "ok-irregular", f"method {rec['outcome']}"
+        return _irregular_pair(rec, ref_rec)
     impacts = sum(rec["impacts_per_period"] or (0.0, 0.0))
     if cf.kind == "pinned" and cf.pinned_db is not None:
         return _against(method, "pinned", db, cf.pinned_db)
@@ -398,7 +419,8 @@ def as_expected(expect: str, row: dict[str, Any], cf: ClosedForms) -> str:
         return "yes" if out == "failed" and reason else "no"
     if row["outcome"] == "ok-periodic":
         return "yes"
-    return "unchecked" if row["outcome"] in ("ok-irregular", "ok-unchecked") else "no"
+    unchecked = ("ok-irregular", "irregular-apart", "ok-unchecked")
+    return "unchecked" if row["outcome"] in unchecked else "no"
 
 
 def esc(text: str) -> str:
@@ -734,7 +756,12 @@ def report(rows, design, args, sweep_s, command) -> list[str]:
         for reason, n in c.most_common():
             lines.append(f"| {m} | {n} | {esc(reason)} |")
     lines.append("")
-    irr = Counter((r["method"], r["note"]) for r in rows if r["outcome"] == "ok-irregular")
+    within = f"both irregular, within {ERROR_BARS:g} combined SE"
+    irr = Counter(
+        (r["method"], within if r["note"].startswith("irregular |ΔΓ|") else r["note"])
+        for r in rows
+        if r["outcome"] == "ok-irregular"
+    )
     lines += ["## Irregular or classified differently", ""]
     lines += ["| method | note | count |", "|---|---|---|"]
     for (m, note), n in sorted(irr.items()):
@@ -743,9 +770,10 @@ def report(rows, design, args, sweep_s, command) -> list[str]:
     problems = [
         r
         for r in rows
-        if r["outcome"] in ("disagreeing", "non-finite-record", "timeout", "crashed")
+        if r["outcome"]
+        in ("disagreeing", "irregular-apart", "non-finite-record", "timeout", "crashed")
     ]
-    lines += ["## Problems (disagreeing, non-finite, timeout, crashed)", ""]
+    lines += ["## Problems (disagreeing, irregular apart, non-finite, timeout, crashed)", ""]
     if not problems:
         lines.append("None.")
     else:
