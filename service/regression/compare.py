@@ -449,9 +449,8 @@ def compare(
         a, old_v = _aligned(new, baseline, var)
         new_v = np.asarray(a.values, dtype=np.float64)
         if chk.error_bars is not None:
-            _within_error_bars(
-                out, var, chk.error_bars, new, baseline, _on(irr_old & irr_new, a, dims)
-            )
+            both = _on(irr_old & irr_new, a, dims)
+            _within_error_bars(out, var, chk.error_bars, a, old_v, new, baseline, both)
         out.distribution += _distribution(
             var, chk, old_v, new_v, _on(irr_old, a, dims), _on(irr_new, a, dims)
         )
@@ -473,7 +472,7 @@ def _sensitive(ds: xr.Dataset, dims: tuple[str, ...]) -> np.ndarray:
     if "may_be_transient" in ds and set(ds["may_be_transient"].dims) == set(dims):
         flag = np.asarray(ds["may_be_transient"].transpose(*dims).values)
         why[flag.astype(bool)] = "may be transient chaos"
-    if "reason" in ds and set(ds["reason"].dims) == set(dims):  # a file without the flag
+    elif "reason" in ds and set(ds["reason"].dims) == set(dims):  # a file without the flag
         text = ds["reason"].transpose(*dims).values.astype(str)
         why[np.char.find(text, TRANSIENT_NOTE) >= 0] = "may be transient chaos"
     return why
@@ -483,17 +482,19 @@ def _within_error_bars(
     out: StudyComparison,
     var: str,
     z: float,
+    a: xr.DataArray,
+    old_v: np.ndarray,
     new: xr.Dataset,
     baseline: xr.Dataset,
     both: np.ndarray,
 ) -> None:
-    """Points irregular in both runs whose ``var`` moved by more than ``z`` combined standard
-    errors (``<var>_se``) go to ``out.changes``; a point without an error bar is not compared."""
+    """Points irregular in both runs whose ``var`` (``a``, new; ``old_v``, the baseline's
+    aligned to it) moved by more than ``z`` combined standard errors (``<var>_se``) go to
+    ``out.changes``; a point without an error bar is not compared."""
     se = f"{var}_se"
     if se not in new or se not in baseline:
         out.notes.append(f"{var}: not compared within error bars ({se} not in both datasets)")
         return
-    a, old_v = _aligned(new, baseline, var)
     new_v = np.asarray(a.values, dtype=np.float64)
     _, se_old = _aligned(new, baseline, se)
     se_new = np.asarray(new[se].transpose(*a.dims).values, dtype=np.float64)
