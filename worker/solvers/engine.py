@@ -870,6 +870,9 @@ class _Windows:
     half_range: np.ndarray = field(default_factory=lambda: np.zeros(1024))
     periods: int = 0
     first_measured: int = -1  # the first period measured (exact extrema), -1 none yet
+    # the last stats() and the (first, periods) it was computed for: a claim reads them up to
+    # three times (converged?, its reason, its result) without new periods in between
+    _stats: tuple[tuple[int, int], SeriesStats] | None = None
 
     def __post_init__(self) -> None:
         self._open()
@@ -924,7 +927,10 @@ class _Windows:
 
     def stats(self) -> SeriesStats:
         """:func:`series_stats` of the half-ranges of the periods from :attr:`first` on."""
-        return series_stats(self.half_range[self.first : self.periods])
+        span = (self.first, self.periods)
+        if self._stats is None or self._stats[0] != span:
+            self._stats = (span, series_stats(self.half_range[span[0] : span[1]]))
+        return self._stats[1]
 
 
 def _db(amplitude: float, base_scale: float) -> float:
