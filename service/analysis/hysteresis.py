@@ -339,7 +339,8 @@ def hysteresis_json(h: xr.Dataset) -> dict[str, Any]:
         ``variable`` (name, units, long name), ``x`` and ``axes.x`` (name, units, long name,
         values), ``sweep_axis``, ``branch_dims``, ``slice`` (every fixed coordinate: value,
         units, long name, ``default``), ``jump_db`` and ``tol_db`` (value, units, meaning),
-        ``branches`` (label, direction, initial, order, values along x, outcomes, jumps),
+        ``branches`` (label, direction, initial, order, values along x, outcomes,
+        ``may_be_transient`` along x (None when the results lack the flag), jumps),
         ``jumps`` (label, branch, direction, initial, from, to, interval, from_value,
         to_value, size_db, across_missing), ``differing`` (start, stop, points,
         max_spread_db), ``spread_db`` and ``differs`` along x, ``responses`` (None when the
@@ -355,6 +356,11 @@ def hysteresis_json(h: xr.Dataset) -> dict[str, Any]:
     if names is not None and "pending" in h.data_vars:
         names = names.astype(object)
         names[np.asarray(h["pending"].values, dtype=bool)] = "pending"
+    transient = (
+        np.asarray(h["may_be_transient"].values, dtype=bool)
+        if "may_be_transient" in h.data_vars
+        else None
+    )
     labels = [str(v) for v in h["branch"].values]
     jumps = []
     for k in range(h.sizes["jump"]):
@@ -388,6 +394,7 @@ def hysteresis_json(h: xr.Dataset) -> dict[str, Any]:
                 "values": jsonable(row),
                 "points": int(np.isfinite(row).sum()),
                 "outcomes": None if names is None else [str(n) for n in names[b]],
+                "may_be_transient": None if transient is None else [bool(t) for t in transient[b]],
                 "jumps": [j["label"] for j in jumps if j["branch"] == label],
             }
         )
@@ -455,7 +462,8 @@ def hysteresis_csv(h: xr.Dataset) -> str:
     """A :func:`hysteresis_map` as CSV text in long form: one row per branch and x value.
 
     Columns: ``branch``, ``direction``, ``initial``, x's name, the variable, ``outcome``,
-    ``jump`` (the label of a jump that lands on this point, else empty), ``jump_size_db``,
+    ``may_be_transient`` (empty when the results lack the flag), ``jump`` (the label of a jump
+    that lands on this point, else empty), ``jump_size_db``,
     ``spread_db``, ``differs``, ``responses``, then one column per fixed coordinate.
     """
     doc = hysteresis_json(h)
@@ -466,7 +474,8 @@ def hysteresis_csv(h: xr.Dataset) -> str:
     }
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["branch", "direction", "initial", x, variable, "outcome", "jump",
+    w.writerow(["branch", "direction", "initial", x, variable, "outcome", "may_be_transient",
+                "jump",
                 "jump_size_db", "spread_db", "differs", "responses", *fixed])  # fmt: skip
     tail = [_cell(doc["slice"][k]["value"]) for k in fixed]
     xs = doc["axes"]["x"]["values"]
@@ -475,8 +484,10 @@ def hysteresis_csv(h: xr.Dataset) -> str:
         for i, xv in enumerate(xs):
             j = landing.get((br["label"], xv))
             outcome = br["outcomes"][i] if br["outcomes"] is not None else None
+            flag = br["may_be_transient"][i] if br["may_be_transient"] is not None else None
             w.writerow([br["label"], _cell(br["direction"]), _cell(br["initial"]), _cell(xv),
-                        _cell(br["values"][i]), _cell(outcome), j["label"] if j else "",
+                        _cell(br["values"][i]), _cell(outcome), _cell(flag),
+                        j["label"] if j else "",
                         _cell(j["size_db"]) if j else "", _cell(doc["spread_db"][i]),
                         _cell(doc["differs"][i]), _cell(responses[i]), *tail])  # fmt: skip
     return buf.getvalue()

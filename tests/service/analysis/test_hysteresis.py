@@ -264,6 +264,24 @@ def test_csv_has_one_row_per_branch_and_x_with_jumps_where_they_land() -> None:
     assert rows[5]["differs"] == "true" and rows[0]["initial"] == "" and rows[0]["gap"] == "0.1"
 
 
+def test_json_and_csv_carry_the_may_be_transient_flag_per_branch_and_point() -> None:
+    ds = sweep_ds()
+    assert hysteresis_json(hysteresis_map(ds))["branches"][0]["may_be_transient"] is None
+    flag = np.zeros(ds["transmittance_db"].shape, dtype=bool)
+    flag[1, 0, 4] = True  # down, gap 0.1 (the slice shown), γ_r 0.9
+    ds["may_be_transient"] = (ds["transmittance_db"].dims, flag, {"long_name": "may be transient"})
+    h = hysteresis_map(ds)
+    doc = hysteresis_json(h)
+    down = next(b for b in doc["branches"] if b["label"] == "down")
+    up = next(b for b in doc["branches"] if b["label"] == "up")
+    assert [i for i, f in enumerate(down["may_be_transient"]) if f] == [4]
+    assert not any(up["may_be_transient"])
+    rows = list(csv.DictReader(io.StringIO(hysteresis_csv(h))))
+    marked = [(r["branch"], r["gamma_r"]) for r in rows if r["may_be_transient"] == "true"]
+    assert marked == [("down", repr(float(GR[4])))]
+    assert sum(r["may_be_transient"] == "false" for r in rows) == 2 * GR.size - 1
+
+
 # --------------------------------------------------------------------------- the figure
 
 
