@@ -28,7 +28,7 @@ importlib.import_module("numpy")
 
 # --------------------------------------------------------------------------- test tiers
 
-# ``pytest -n 2 -m "not slow"`` is the developer loop (~60 s on 2 cores); CI runs everything. A test
+# ``pytest -n 2 -m "not slow"`` is the developer loop (its time: README.md); CI runs everything. A test
 # that uses one of these fixtures starts a real dask cluster, so it is slow wherever it lives;
 # servers, subprocesses and whole studies are marked where they are written.
 CLUSTER_FIXTURES = frozenset({"dask_address", "cluster_client"})

@@ -8,8 +8,8 @@ Runs (or reuses, from the data folder) ``paper-fig5-theta1``, ``paper-fig5-secon
 
 About two minutes on two cores serially (the default; results already in the data root, e.g.
 from ``impactcell run``, are reused); ``--workers N`` runs the studies on an embedded dask
-cluster instead. Irregular and unsettled points are marked, so jumps in the curves
-can be told from data.
+cluster instead. Irregular, may-be-transient and unsettled points are marked, so jumps in the
+curves can be told from data.
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import worker  # noqa: F401  # first: pins the CPU target (worker/cpu.py), as the service does
+
+# isort: split
 import matplotlib
 
 matplotlib.use("Agg")
@@ -48,11 +51,18 @@ def results(name: str, data: Path, workers: int | None) -> xr.Dataset:
     return xr.load_dataset(summary.path).squeeze(drop=True)
 
 
-def mark_outcomes(ax: Axes, x: np.ndarray, y: np.ndarray, outcome: np.ndarray, color: str) -> None:
-    """Irregular points as crosses, unsettled ones as open squares, in the line's colour."""
+def mark_outcomes(
+    ax: Axes, x: np.ndarray, y: np.ndarray, outcome: np.ndarray, color: str,
+    transient: np.ndarray | None = None,
+) -> None:  # fmt: skip
+    """Irregular points as crosses, unsettled ones as open squares, points whose impacts may
+    still die out (the ``may_be_transient`` flag) circled, in the line's colour."""
     for flag, marker, mfc in ((IRREGULAR, "x", color), (UNSETTLED, "s", "none")):
         k = outcome == flag
         ax.plot(x[k], y[k], ls="none", marker=marker, ms=2.5, mew=0.6, mfc=mfc, color=color)
+    if transient is not None:
+        k = transient.astype(bool)
+        ax.plot(x[k], y[k], ls="none", marker="o", ms=5, mew=0.6, mfc="none", color=color)
 
 
 def fig5_panel(ax: Axes, ds: xr.Dataset, title: str) -> None:
@@ -65,7 +75,8 @@ def fig5_panel(ax: Axes, ds: xr.Dataset, title: str) -> None:
         color = cmap(k / max(ds.sizes["gap"] - 1, 1) * 0.9)
         g = p.transmittance_db.values
         ax.plot(x, g, lw=1.0, color=color, label=f"g̃ = {gap:g}")
-        mark_outcomes(ax, x, g, p.outcome.values, color)
+        flag = p.may_be_transient.values if "may_be_transient" in p else None
+        mark_outcomes(ax, x, g, p.outcome.values, color, flag)
         impacting = np.flatnonzero(p.outcome.values != 0)
         if impacting.size:  # last frequency with impacts: beyond it the curves coincide
             ax.axvline(x[impacting.max()], color=color, lw=0.6, ls=":")
@@ -74,6 +85,7 @@ def fig5_panel(ax: Axes, ds: xr.Dataset, title: str) -> None:
     ax.axhline(0.0, color="k", lw=0.5)
     ax.plot([], [], "kx", ms=3, label="irregular")
     ax.plot([], [], "ks", ms=3, mfc="none", label="unsettled")
+    ax.plot([], [], "ko", ms=5, mfc="none", mew=0.6, label="may be transient")
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("γ_r = Ω/ω_b")
     ax.set_ylabel("transmittance Γ (dB)")

@@ -1,5 +1,5 @@
 """/docs and the token: an Authorize button (bearer security scheme), Swagger UI served by the
-service itself (works offline), and exactly the open routes the README lists."""
+service itself (works offline), and exactly the open routes docs/service.md lists."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from starlette.routing import BaseRoute, Mount
 from service.api.app import OPEN_ROUTES
 from tests.service.helpers import API_TOKEN
 
-README = Path(__file__).resolve().parents[3] / "README.md"
+SERVICE_DOC = Path(__file__).resolve().parents[3] / "docs" / "service.md"
 TOKEN = API_TOKEN
 # A value for every path parameter a route may have (a well-formed id that does not exist).
 PATH_VALUES = {"study_id": "abcdef0123456789", "kind": "transmittance", "fmt": "png",
@@ -102,9 +102,9 @@ def test_every_route_but_the_open_ones_needs_the_token(tc: TestClient) -> None:
         assert r.status_code == 401, header
 
 
-def test_readme_lists_exactly_the_open_routes() -> None:
-    text = README.read_text(encoding="utf-8")
+def test_the_service_doc_lists_exactly_the_open_routes() -> None:
+    text = SERVICE_DOC.read_text(encoding="utf-8")
     m = re.search(r"Open routes \(no token\): (.+?)\.\n", text)
-    assert m, "the README sentence listing the open routes is missing"
+    assert m, "the sentence of docs/service.md listing the open routes is missing"
     listed = set(re.findall(r"`([^`]+)`", m.group(1)))
     assert listed == {p if p != "/docs/assets" else "/docs/assets/*" for p in OPEN_ROUTES}
