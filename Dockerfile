@@ -16,11 +16,11 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 # psycopg[binary] all ship manylinux wheels, so no compiler is needed; the source tree is built
 # in a scratch directory and removed, so only site-packages holds the code and the shipped
 # studies (package data: `impactcell run quick`, `impactcell studies`, the nightly suite).
-COPY pyproject.toml README.md /tmp/src/
+COPY pyproject.toml README.md constraints.txt /tmp/src/
 COPY worker /tmp/src/worker
 COPY service /tmp/src/service
 COPY studies /tmp/src/studies
-RUN pip install "/tmp/src[postgres]" \
+RUN pip install -c /tmp/src/constraints.txt "/tmp/src[postgres]" \
     && rm -rf /tmp/src \
     && impactcell --help > /dev/null \
     && impactcell studies > /dev/null

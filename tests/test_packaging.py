@@ -106,3 +106,37 @@ def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) ->
     # The installed baselines are never written; an explicit folder is asked for.
     refused = cli("nightly", "--update-baseline", "--quiet")
     assert refused.returncode == 2 and "--baselines DIR" in refused.stderr
+
+
+def _pins() -> dict[str, str]:
+    """constraints.txt as {normalized name: version}."""
+    pins: dict[str, str] = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        req = Requirement(line)
+        (spec,) = req.specifier  # one exact pin per line
+        assert spec.operator == "==", line
+        pins[_normalized(req.name)] = spec.version
+    return pins
+
+
+def _normalized(name: str) -> str:
+    return name.lower().replace("_", "-").replace(".", "-")
+
+
+def test_the_constraints_pin_every_dependency_within_pyproject() -> None:
+    pins = _pins()
+    project = PYPROJECT["project"]
+    deps = list(project["dependencies"])
+    for extra in project["optional-dependencies"].values():
+        deps += extra
+    deps += PYPROJECT["build-system"]["requires"]
+    for text in deps:
+        req = Requirement(text)
+        name = _normalized(req.name)
+        assert name in pins, f"{req.name} is not pinned in constraints.txt"
+        assert req.specifier.contains(pins[name], prereleases=True), (
+            f"constraints.txt pins {req.name}=={pins[name]}, outside pyproject's {req.specifier}"
+        )
