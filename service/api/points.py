@@ -159,16 +159,6 @@ class SqlPointStore:
 
     # ------------------------------------------------------------------ housekeeping
 
-    def unlink_study(self, study_id: str) -> int:
-        """Drop a study's links (its points stay for ``gc``); how many."""
-        with self.engine.begin() as conn:
-            return int(
-                conn.execute(
-                    delete(StudyPointRow).where(StudyPointRow.study_id == study_id)
-                ).rowcount
-                or 0
-            )
-
     def gc(self, data_dir: Path | None = None, *, dry_run: bool = False) -> dict[str, int]:
         """Remove points no study uses. A study counts while the catalogue lists it or (a study
         run from the command line) its folder exists under ``data_dir``/studies; links of other

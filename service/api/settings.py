@@ -55,7 +55,7 @@ class Settings(BaseSettings):
     # When set, every route except /health needs "Authorization: Bearer <token>".
     api_token: str | None = None
     max_body_bytes: int = Field(1_000_000, ge=1024)
-    # Grid-size limit of a study; unset = the study schema's (2,000,000).
+    # Grid-size limit of a study; unset = service.studies.limits.DEFAULT_MAX_POINTS.
     max_points: int | None = Field(None, ge=1)
     # Cron expression (5 fields) for the nightly regression suite; unset = no schedule.
     nightly_cron: str | None = None

@@ -9,6 +9,7 @@ import sys
 from typing import Any
 
 from service.cli.common import positive_int, probe_scheduler, settings_from_flags
+from service.studies.limits import DEFAULT_CHUNK_SIZE, DEFAULT_MAX_POINTS
 
 __all__ = ["add_commands"]
 
@@ -184,13 +185,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "--chunk-size",
         type=positive_int,
         default=None,
-        help="points per dask task (default 96, less for small studies)",
+        help=f"points per dask task (default {DEFAULT_CHUNK_SIZE}, less for small studies)",
     )
     p.add_argument(
         "--max-points",
         type=positive_int,
         default=None,
-        help="grid size limit (default $IMPACTCELL_MAX_POINTS or 2,000,000)",
+        help=f"grid size limit (default $IMPACTCELL_MAX_POINTS or {DEFAULT_MAX_POINTS:,})",
     )
     p.add_argument("--serial", action="store_true", help="run in this process, without dask")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

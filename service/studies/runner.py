@@ -49,6 +49,7 @@ from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore, iter_chunk_ranges
 from service.studies.dask_settings import user_set
 from service.studies.dataset import open_results, results_from_records, summarize
+from service.studies.limits import DEFAULT_CHUNK_SIZE
 from service.studies.points import (
     TASK_FAILED,
     PointStore,
@@ -85,7 +86,6 @@ __all__ = [
 # process, half in the worker) and ~5.5 ms to store its chunk (benchmarks/task_overhead.py). At
 # Figure 5's ~4 ms a point, 32 points a task added ~15 %; 96 (61 tasks instead of 182) made its
 # run ~3 s shorter (benchmarks/run_command.py --chunk-size 32, 10 interleaved pairs); 192 no more.
-DEFAULT_CHUNK_SIZE = 96
 TASK_RETRIES = 2
 CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, not minutes
 # What an embedded cluster's servers (scheduler, nannies, workers) do on their event loops
@@ -543,11 +543,6 @@ class ChunkPool:
         if run is not None:
             run.in_flight = 0
         return run
-
-    @property
-    def idle(self) -> bool:
-        """No task in flight."""
-        return not self._futures
 
     # ------------------------------------------------------------------ submission
 

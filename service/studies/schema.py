@@ -39,6 +39,7 @@ from pydantic import Field, PrivateAttr, ValidationError
 
 from service.studies.files import read_study_file
 from service.studies.grid import AXIS_TAGS, Range, Real, StrictModel, axis_size, axis_values
+from service.studies.limits import DEFAULT_MAX_POINTS
 from service.studies.specs import (
     PER_FREQUENCY_FIELDS,
     AdaptiveSpec,
@@ -75,7 +76,6 @@ __all__ = [
 ]
 
 # The grid-size limit when none is given (``Settings.max_points``, ``--max-points``).
-DEFAULT_MAX_POINTS = 2_000_000
 #: Two responses at one grid point whose Γ differ by less than this (dB) are the same one
 #: (``outputs.coexistence_tol_db``; irregular ones: within 3 combined standard errors).
 DEFAULT_COEXISTENCE_TOL_DB = 0.05
@@ -353,11 +353,6 @@ class Study(StrictModel):
             f = fields.pop("frequency_hz")
             out.append((PhysicalCell(**fields), f))
         return out
-
-    def length_scales_m(self, start: int, stop: int, *, grid: bool = False) -> np.ndarray:
-        """A physical study's length unit ``B = U_g/(θγ_s)`` (m) at points ``start:stop``:
-        model lengths (``amplitude``, gaps) times B are metres."""
-        return np.array([c.length_scale_m(f) for c, f in self.cells(start, stop, grid=grid)])
 
     def points(self, start: int, stop: int, *, grid: bool = False) -> list[dict[str, Any]]:
         """``CellParams`` keyword dicts of points ``start:stop`` in work order (with ``grid``:
