@@ -24,7 +24,7 @@ from sqlalchemy.engine import Engine
 from service.api.catalogue import PointRow, SolverRow, StudyPointRow, StudyRow, utcnow
 from service.studies.chunks import CHUNK_FIELDS, record_columns, with_transient_flag
 from service.studies.points import KEY_LENGTH, PARAM_COLUMNS, cell_of, solver_key
-from service.studies.variables import AXES, VARIABLES, flag_attrs, outcome_attrs
+from service.studies.variables import AXES, result_values, stop_coordinate
 from worker.simulate import SOLVER_VERSION
 
 __all__ = [
@@ -386,18 +386,9 @@ def points_dataset(rows: Sequence[Mapping[str, Any]]) -> Any:
 
     cols = record_columns(rows)
     data_vars: dict[str, Any] = {}
+    failed = np.asarray(cols["failed"], dtype=bool) if "failed" in cols else None
     for name, arr in cols.items():
-        var = VARIABLES[name]
-        attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
-        if var.kind == "flag":
-            attrs.update(outcome_attrs())
-        attrs.update(flag_attrs(var))
-        a = arr
-        if var.kind == "maskint":
-            a = arr.astype(np.float64)
-            a[arr < 0] = np.nan
-        elif var.kind == "str":
-            a = np.array([str(x) for x in arr], dtype=object)
+        a, attrs = result_values(name, arr, failed)
         dims: tuple[str, ...] = ("point", "stop") if name == "impacts_per_period" else ("point",)
         data_vars[name] = (dims, a, attrs)
     coords: dict[str, Any] = {
@@ -414,7 +405,7 @@ def points_dataset(rows: Sequence[Mapping[str, Any]]) -> Any:
             info = AXES.get(c)
             attrs = {"units": info.units, "long_name": info.long_name} if info else {}
             coords[c] = ("point", arr, attrs)
-    coords["stop"] = ("stop", np.array([1, 2], dtype=np.int64))
+    coords["stop"] = stop_coordinate()
     return xr.Dataset(
         data_vars,
         coords=coords,

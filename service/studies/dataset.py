@@ -42,13 +42,14 @@ from service.studies.provenance import provenance_attrs
 from service.studies.schema import Study
 from service.studies.variables import (
     AXES,
+    MISSING_INT,
     PHYSICAL_VARIABLES,
     SWEEP_VARIABLES,
     VARIABLES,
-    flag_attrs,
-    outcome_attrs,
     outcome_counts,
     outcome_names,
+    result_values,
+    stop_coordinate,
 )
 from worker.simulate import SOLVER_VERSION
 
@@ -68,7 +69,7 @@ __all__ = [
 ]
 
 FILL_FLOAT = 9.969209968386869e36  # netCDF's default double fill (NC_FILL_DOUBLE)
-FILL_INT = -1
+FILL_INT = MISSING_INT
 PENDING = "pending: not computed yet"  # reason of points a partial dataset does not have yet
 # Model parameters a physical study's dataset carries as coordinates beside the SI axes.
 _DERIVED = ("gamma_r", "theta", "sigma", "gamma_s", "xi", "g1", "g2")
@@ -114,7 +115,7 @@ def results_from_records(
         coords[k] = ((), v, _attrs(k))
     if study.initial is not None and study.n_initial == 1:
         coords["initial"] = ((), study.initial_labels()[0], _attrs("initial"))
-    coords["stop"] = ("stop", np.array([1, 2], dtype=np.int8), _attrs("stop"))
+    coords["stop"] = stop_coordinate()
     if study.is_physical:
         # Results carry the model's parameters too (γ_r next to Hz, and the rest).
         pts = study.points(0, study.grid_size, grid=True)
@@ -140,25 +141,7 @@ def results_from_records(
     for name, var in VARIABLES.items():
         if var.group not in groups:
             continue
-        a = np.asarray(cols[name])
-        if var.kind in ("float", "maskint"):
-            a = a.astype(np.float64)
-            if var.kind == "maskint":
-                a[a == FILL_INT] = np.nan
-            if var.mask:
-                a[failed] = np.nan
-        elif var.kind == "int":
-            a = a.astype(np.int64)
-        elif var.kind == "bool":
-            a = a.astype(bool)
-        elif var.kind == "flag":
-            a = a.astype(np.int8)
-        else:
-            a = np.array([str(x) for x in a], dtype=object)
-        attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
-        if var.kind == "flag":
-            attrs.update(outcome_attrs())
-        attrs.update(flag_attrs(var))
+        a, attrs = result_values(name, cols[name], failed)
         if name == "impacts_per_period":
             data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
         else:

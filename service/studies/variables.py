@@ -48,6 +48,8 @@ __all__ = [
     "outcome_codes",
     "outcome_counts",
     "outcome_names",
+    "result_values",
+    "stop_coordinate",
 ]
 
 
@@ -280,6 +282,48 @@ SWEEP_VARIABLES: dict[str, Variable] = {
         mask=False,
     ),
 }  # fmt: skip
+
+
+# --------------------------------------------------------------------------- stored values
+
+#: An integer result a point does not have (``maskint``: e.g. no response period), in records.
+MISSING_INT = -1
+
+
+def result_values(
+    name: str, values: Any, failed: np.ndarray | None = None
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """A result variable as every dataset stores it: values of its kind's dtype (``maskint``
+    and, at failed points, masked floats as NaN: NetCDF fill values on disk) and its CF
+    attributes. One place for what a study's results and a point-store query both hold."""
+    var = VARIABLES[name]
+    a = np.asarray(values)
+    if var.kind in ("float", "maskint"):
+        a = a.astype(np.float64)
+        if var.kind == "maskint":
+            a[a == MISSING_INT] = np.nan
+        if var.mask and failed is not None:
+            a[failed] = np.nan
+    elif var.kind == "int":
+        a = a.astype(np.int64)
+    elif var.kind == "bool":
+        a = a.astype(bool)
+    elif var.kind == "flag":
+        a = a.astype(np.int8)
+    else:
+        a = np.array([str(x) for x in a], dtype=object)
+    attrs: dict[str, Any] = {"units": var.units, "long_name": var.long_name}
+    if var.kind == "flag":
+        attrs.update(outcome_attrs())
+    attrs.update(flag_attrs(var))
+    return a, attrs
+
+
+def stop_coordinate() -> tuple[str, np.ndarray, dict[str, str]]:
+    """The ``stop`` coordinate (1, 2) of per-stop variables such as ``impacts_per_period``."""
+    info = AXES["stop"]
+    return ("stop", np.array([1, 2], dtype=np.int8), {"units": info.units,
+                                                       "long_name": info.long_name})  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the outcome flag
