@@ -140,3 +140,77 @@ def test_the_constraints_pin_every_dependency_within_pyproject() -> None:
         assert req.specifier.contains(pins[name], prereleases=True), (
             f"constraints.txt pins {req.name}=={pins[name]}, outside pyproject's {req.specifier}"
         )
+
+
+def _closure(names: list[str]) -> set[str]:
+    """The installed distributions ``names`` need, themselves included (markers evaluated,
+    no extras): what ``pip install NAMES`` brings."""
+    from importlib import metadata
+
+    seen: set[str] = set()
+    todo = list(names)
+    while todo:
+        name = _normalized(todo.pop())
+        if name in seen:
+            continue
+        seen.add(name)
+        for text in metadata.requires(name) or []:
+            req = Requirement(text)
+            if req.marker is None or req.marker.evaluate({"extra": ""}):
+                todo.append(req.name)
+    return seen
+
+
+@pytest.mark.slow
+def test_the_client_runs_with_httpx_xarray_and_numpy_alone(tmp_path: Path) -> None:
+    """docs/service.md's client install: the package without its dependencies, plus httpx,
+    xarray and numpy (and what they need). Built from this machine's installed files, no index:
+    a site folder holding only those distributions, and the package's wheel."""
+    from importlib import metadata
+
+    site = tmp_path / "site"
+    site.mkdir()
+    light = _closure(["httpx", "xarray", "numpy"])
+    assert not light & {"numba", "scipy", "fastapi", "dask", "sqlalchemy", "matplotlib"}
+    for name in light:
+        dist = metadata.distribution(name)
+        for f in dist.files or []:
+            top = Path(str(f)).parts[0]
+            src = Path(str(dist.locate_file(top)))
+            if src.exists() and not (site / top).exists():
+                (site / top).symlink_to(src)
+    dist_dir = tmp_path / "dist"
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
+         "-q", "-w", str(dist_dir), str(ROOT)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert build.returncode == 0, build.stderr
+    (wheel,) = dist_dir.glob("impactcell-*.whl")
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
+         str(site), str(wheel)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert install.returncode == 0, install.stderr
+    script = (
+        "import importlib.util, json, sys\n"
+        "import httpx\n"
+        "from service.client import Client\n"
+        "def answer(request):\n"
+        "    return httpx.Response(200, json={'items': [], 'total': 0, 'limit': 50, 'offset': 0})\n"
+        "c = Client('http://127.0.0.1:9', transport=httpx.MockTransport(answer))\n"
+        "page = c.list()\n"
+        "missing = [m for m in ('numba', 'scipy', 'fastapi', 'dask')\n"
+        "           if importlib.util.find_spec(m) is None]\n"
+        "print(json.dumps({'total': page.total, 'missing': missing}))\n"
+    )
+    # -I: isolated (no user site, no PYTHONPATH, no cwd); -S: no site-packages of this venv.
+    head = f"import sys; sys.path[:0] = [{str(site)!r}]\n"
+    run = subprocess.run(
+        [sys.executable, "-I", "-S", "-c", head + script],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out == {"total": 0, "missing": ["numba", "scipy", "fastapi", "dask"]}
