@@ -10,6 +10,7 @@ points of one sweep line in order, each starting from its predecessor's final st
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
 import math
@@ -20,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from worker.compile_progress import compile_progress
 from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
 from worker.numba_cache import exclusive, mark_done, marked_done, on_disk
@@ -78,7 +80,7 @@ __all__ = [
 POINT_KEYS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling", "xi_b")
 
 # How long a first compilation usually takes on a 2-core machine (measured; README).
-COMPILE_SECONDS = {"event": "20–60", "exponential": "15–40", "euler": "10–30"}
+COMPILE_SECONDS = {"event": "60–240", "exponential": "20–60", "euler": "40–120"}
 
 
 def simulate_point(
@@ -358,10 +360,12 @@ def _warm_one(method: str, compiling: bool, quiet: bool) -> None:
     t0 = time.perf_counter()
     p = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.0, modes=1)
     s = SolverSettings(method=method, steps_per_period=64, max_periods=3, window=1)
-    # a point that impacts and a point that is linear at once: every kernel path compiles
-    simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
-    compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
-    RUNS[method].compile_helpers()  # the method's own (event: the exact monodromy matrix)
+    talk = compile_progress(method) if compiling and not quiet else contextlib.nullcontext()
+    with talk:
+        # a point that impacts and a point that is linear at once: every kernel path compiles
+        simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
+        compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
+        RUNS[method].compile_helpers()  # the method's own (event: the exact monodromy matrix)
     mark_done(_warm_mark(method))
     if compiling and not quiet:
         print(f"impactcell: {method!r} kernels ready in {time.perf_counter() - t0:.0f} s",

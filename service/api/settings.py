@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from worker.limits import POINT_STEPS, POINT_STEPS_MAX, POINT_WALL_S, POINT_WALL_S_MAX
+
 if TYPE_CHECKING:
     from worker.solvers.settings import PointLimits
 
@@ -66,8 +68,8 @@ class Settings(BaseSettings):
     url: str = DEFAULT_URL
     # Budget of one point (worker.simulate.PointLimits): over it, the point is failed with
     # the reason, so one pathological point never holds a worker for long.
-    point_time_limit_s: float = Field(600.0, gt=0, le=86_400)
-    point_step_limit: int = Field(10**9, ge=1, le=10**12)
+    point_time_limit_s: float = Field(POINT_WALL_S, gt=0, le=POINT_WALL_S_MAX)
+    point_step_limit: int = Field(POINT_STEPS, ge=1, le=POINT_STEPS_MAX)
     # Wall-time budget of one /timeseries recomputation (run on the cluster, then cached).
     timeseries_time_limit_s: float = Field(60.0, gt=0, le=3600)
     # Studies run at once, sharing the cluster chunk by chunk (the rest wait in order).

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import re
 import time
@@ -190,6 +191,7 @@ def _cmd_spectrum(args: argparse.Namespace) -> int:
 
 
 def _cmd_warmup(args: argparse.Namespace) -> int:
+    from worker.compile_progress import compile_progress
     from worker.simulate import kernels_cached, warm_up
 
     methods = list(dict.fromkeys(args.method or METHODS))  # given order, no repeats
@@ -201,7 +203,8 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
         )
         print(f"{m}: {what} ...", flush=True)
         t0 = time.perf_counter()
-        warm_up(m, quiet=True)
+        with compile_progress(m) if cached is not True else contextlib.nullcontext():
+            warm_up(m, quiet=True)
         now = kernels_cached(m)
         on_disk = {True: "cached on disk", False: "NOT cached on disk"}.get(now, "cache unknown")
         print(f"{m}: ready in {time.perf_counter() - t0:.1f} s ({on_disk})", flush=True)

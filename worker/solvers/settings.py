@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from worker.checks import check_fields, integer
+from worker.limits import POINT_STEPS, POINT_STEPS_MAX, POINT_WALL_S, POINT_WALL_S_MAX
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -69,8 +70,10 @@ class PointLimits:
         Time steps (events for ``event``) one point may take.
     """
 
-    wall_s: float = field(default=600.0, metadata={"gt": 0.0, "le": 86_400.0})
-    steps: int = field(default=10**9, metadata={"integer": True, "ge": 1, "le": 10**12})
+    wall_s: float = field(default=POINT_WALL_S, metadata={"gt": 0.0, "le": POINT_WALL_S_MAX})
+    steps: int = field(
+        default=POINT_STEPS, metadata={"integer": True, "ge": 1, "le": POINT_STEPS_MAX}
+    )
 
     def __post_init__(self) -> None:
         check_fields(self)
