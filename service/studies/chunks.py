@@ -316,8 +316,9 @@ class StudyStore:
         if self.definition_path.exists():
             on_disk = json.loads(self.definition_path.read_text(encoding="utf-8"))
             if on_disk.get("definition") != self.study.canonical():
+                # the folder under the data root: never the server's path
                 raise ValueError(
-                    f"study folder {self.folder} holds a different definition; remove it"
+                    f"study folder studies/{self.id} holds a different definition; remove it"
                 )
             return
         payload = json.dumps(
