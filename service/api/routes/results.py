@@ -227,7 +227,14 @@ def _open_checked(catalogue: Catalogue, rec: dict[str, Any], store: StudyStore,
     try:
         return _cache.get(path)
     except (OSError, ValueError):  # never the reader's message: it names the server's path
-        raise _rebuild(catalogue, rec, store.results_status()) from None
+        status = store.results_status()
+        if status != "ok" and rec["status"] == "finished":
+            raise _rebuild(catalogue, rec, status) from None
+        raise HTTPException(  # replaced while opened, or set aside (the next answer: partial)
+            503,
+            f"the results file of study {rec['id']} could not be opened; retry",
+            headers={"Retry-After": "1"},
+        ) from None
 
 
 def load_dataset(
