@@ -12,7 +12,7 @@ import netCDF4
 import pytest
 
 from service.studies.dataset import results_from_records
-from tests.service.api.test_results import QUICK, Served
+from tests.service.api.test_results import QUICK, Served, record
 from tests.service.studies.test_damaged_files import _flip_value, _truncate
 
 ROUTES = ("/dataset", "/data", "/bandgap", "/plots/bandgap.png")
@@ -106,3 +106,37 @@ def test_a_damaged_results_file_is_never_served_and_the_study_is_queued_to_rebui
     again = served.get("/dataset")
     assert again.status_code == 200 and again.headers["x-impactcell-partial"] == "1"
     assert int(served.client.dataset(served.id).attrs["points_done"]) == 36
+
+
+def test_a_study_whose_chunks_are_found_damaged_at_collation_is_queued_again(
+    tmp_path: Path,
+) -> None:
+    from service.api.catalogue import Catalogue
+    from service.api.jobs import JobManager, _Active
+    from service.api.settings import Settings
+    from service.studies.chunks import MissingPoints
+    from service.studies.runner import StudyRun
+    from service.studies.schema import parse_study
+
+    settings = Settings(data_dir=tmp_path / "data")
+    settings.data_dir.mkdir()
+    cat = Catalogue(settings.catalogue_url())
+    try:
+        study = parse_study(QUICK)
+        cat.add_study(study.id, study.name, study.canonical_json(), study.size)
+        assert cat.set_status_if(study.id, ("queued",), "running")
+        jobs = JobManager(settings, cat)  # not started: its runner thread's step done here
+        run = StudyRun(study, settings.data_dir)
+        for a in range(0, study.size, 6):
+            run.store.write_chunk(a, a + 6, [record(i) for i in range(a, a + 6)])
+        _truncate(run.store.chunk_dir / "6-12.npz")
+        with pytest.raises(MissingPoints):  # what the runner thread meets
+            run.store.collect()
+        jobs._active[study.id] = _Active(study, run, 0.0)
+        jobs._finish(study.id)
+        rec = cat.get_study(study.id)
+        assert rec is not None and rec["status"] == "queued" and rec["error"] is None
+        assert jobs._queue.get_nowait() == study.id  # the runner takes it up again
+        assert not run.store.results_path.exists()
+    finally:
+        cat.close()
