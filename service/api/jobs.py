@@ -34,7 +34,7 @@ from service.api.catalogue import ACTIVE, RESUMABLE, Catalogue, utcnow
 from service.api.points import SqlPointStore
 from service.api.settings import Settings
 from service.studies.adaptive_run import AdaptiveRun
-from service.studies.chunks import StudyStore
+from service.studies.chunks import MissingPoints, StudyStore
 from service.studies.dataset import json_text
 from service.studies.runner import ChunkPool, StudyRun, make_client, make_run, warm_up
 from service.studies.schema import Study, study_from_canonical
@@ -346,7 +346,11 @@ class JobManager:
         if self._pool is not None:
             self._pool.remove(sid)
         try:
-            summary = act.run.collate(self._nworkers)
+            try:
+                summary = act.run.collate(self._nworkers)
+            except MissingPoints as exc:
+                self._run_again(sid, act, exc)
+                return
             size = Path(summary.path).stat().st_size
             self.catalogue.add_result_file(sid, str(summary.path), size)
             self.catalogue.set_status_if(
@@ -361,6 +365,15 @@ class JobManager:
             self._fail(sid, exc)
         finally:
             self.catalogue.release_lease(lease_name(sid), self.instance)
+
+    def _run_again(self, sid: str, act: _Active, exc: MissingPoints) -> None:
+        """Queue a study again whose chunks were damaged (and set aside) while it ran: the
+        next run computes their points (or takes them from the point store)."""
+        log.warning("study %s: %s at collation (damaged chunks set aside); running it again",
+                    sid, exc)  # fmt: skip
+        if self.catalogue.set_status_if(sid, ("running",), "queued", wall_s=act.wall_s(),
+                                         failures=_json(act.failures)):  # fmt: skip
+            self._queue.put(sid)
 
     def _fail(self, sid: str, exc: BaseException) -> None:
         log.error("study %s failed: %s\n%s", sid, exc, traceback.format_exc())

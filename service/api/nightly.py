@@ -185,10 +185,14 @@ class NightlyRunner:
                 status="cancelled",
             )
         elif rec["status"] == "finished":
+            store = StudyStore(self.settings.data_dir, study)
             try:
-                ds = open_results(StudyStore(self.settings.data_dir, study).results_path)
+                if store.results_status() != "ok":  # missing, or damaged and set aside
+                    raise ValueError("its results file is missing or failed its SHA-256 check")
+                ds = open_results(store.results_path)
             except Exception as exc:  # noqa: BLE001 - reported in the run's report
-                cmp = not_run(entry, f"cannot read the results of study {sid}: {exc}")
+                why = str(exc).replace(str(store.results_path), "results.nc")  # no server path
+                cmp = not_run(entry, f"cannot read the results of study {sid}: {why}")
             else:
                 cmp = evaluate(entry, ds, f"service study {sid}", base_dir)
         elif rec["status"] == "cancelled":

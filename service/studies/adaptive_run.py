@@ -94,7 +94,7 @@ class AdaptiveRun:
         self.pieces: deque[tuple[int, int]] = deque()
         self.computed = 0  # points computed by this run
         self.reused = 0  # points the store answered
-        self.cached = self.store.results_path.exists()
+        self.cached = self.store.results_status() == "ok"  # a damaged file: set aside, rebuilt
         if not self.cached:
             self.store.prepare()
             self._refill()

@@ -6,6 +6,8 @@ resolved by the caller's :class:`~service.api.settings.Settings`)::
     studies/<id>/study.json            canonical definition (written once)
     studies/<id>/chunks/<start>-<stop>.npz   one finished chunk of points
     studies/<id>/results.nc            the collated dataset (NetCDF4, zlib)
+    studies/<id>/results.nc.sha256     its SHA-256 (``sha256sum`` format)
+    studies/<id>/damaged/              files that failed their check, set aside
 
 Chunk ranges are in the study's work order (:meth:`~service.studies.schema.Study.work_indices`:
 the grid's C order unless the study has a sweep, whose chunks are whole lines).
@@ -13,14 +15,25 @@ the grid's C order unless the study has a sweep, whose chunks are whole lines).
 Ids are content hashes (:attr:`service.studies.schema.Study.id`), never user-chosen names. Every
 file is written to a temporary name in the same folder, flushed, and renamed into place, so a
 crash (even SIGKILL) never leaves a file that looks complete but is not.
+
+Every file is checked when it is read. A chunk file holds the SHA-256 of its arrays
+(``_sha256``); one that cannot be read, fails that digest, or does not hold the range its name
+says is moved to ``damaged/`` (kept for inspection, logged) and its points count as missing, so
+the next run computes them again (or takes them from the point store). The results file's
+SHA-256 is kept beside it; one that fails it is moved to ``damaged/`` too and the study is run
+again to rebuild it (:meth:`StudyStore.results_status`).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 import os
 import re
 import tempfile
+import threading
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +42,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from service.studies.dataset import FILL_INT, PENDING, encoding, write_netcdf
+from service.studies.dataset import FILL_INT, PENDING, encoding, open_results, write_netcdf
 from service.studies.schema import Study
 from service.studies.variables import OUTCOMES, SWEEP_VARIABLES, VARIABLES, outcome_codes
 from worker.simulate import SOLVER_VERSION
@@ -37,19 +50,28 @@ from worker.solvers.settings import TRANSIENT_NOTE
 
 __all__ = [
     "CHUNK_FIELDS",
+    "DAMAGED_DIR",
     "DEFAULT_DATA_DIR",
     "STUDY_ID",
+    "MissingPoints",
     "PartialState",
     "record_columns",
     "StudyStore",
     "atomic_write",
+    "chunk_digest",
+    "file_sha256",
     "data_root",
     "is_study_id",
     "iter_chunk_ranges",
     "with_transient_flag",
 ]
 
+log = logging.getLogger("impactcell.store")
+
 DEFAULT_DATA_DIR = Path("data")
+#: Where a study's files that failed their check are kept (inside the study's folder).
+DAMAGED_DIR = "damaged"
+_RESULTS_SUM = "results.nc.sha256"
 #: A study id: a hex content hash (the only text a study's file paths are built from).
 STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
@@ -103,6 +125,37 @@ def _stamp(st: os.stat_result) -> tuple[int, int, int]:
     """What identifies a chunk file's content: (inode, mtime, size). Every write is the rename
     of a new file, so a rewritten chunk has a new inode even where timestamps are coarse."""
     return (st.st_ino, st.st_mtime_ns, st.st_size)
+
+
+class MissingPoints(ValueError):
+    """Points of a study without a stored result at collation (their chunk files were damaged
+    and set aside, or removed, after the run planned its work): a run computes them again."""
+
+
+def chunk_digest(arrays: Mapping[str, np.ndarray]) -> str:
+    """SHA-256 (hex) of a chunk's arrays: each one's name, dtype, shape and bytes, by name.
+    The same for the arrays written and for the arrays ``np.load`` gives back."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """SHA-256 (hex) of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+# Results files this process has checked: path -> the stamp it had. A file is hashed again
+# only when it changed (every write renames a new file; an edit in place changes its mtime).
+_VERIFIED: dict[str, tuple[int, int, int]] = {}
+_VERIFIED_LOCK = threading.Lock()
 
 
 def iter_chunk_ranges(ranges: Iterable[tuple[int, int]], size: int) -> list[tuple[int, int]]:
@@ -171,6 +224,12 @@ def record_columns(
                 arr = arr.astype("<U1")
         cols[name] = arr
     return cols
+
+
+def _no_path(exc: BaseException, path: Path) -> str:
+    """An error's text with ``path`` shortened to its name (messages never show the data
+    root)."""
+    return str(exc).replace(str(path), path.name)
 
 
 def _chunk_column(data: Mapping[str, np.ndarray], name: str, n: int) -> np.ndarray:
@@ -257,8 +316,9 @@ class StudyStore:
         if self.definition_path.exists():
             on_disk = json.loads(self.definition_path.read_text(encoding="utf-8"))
             if on_disk.get("definition") != self.study.canonical():
+                # the folder under the data root: never the server's path
                 raise ValueError(
-                    f"study folder {self.folder} holds a different definition; remove it"
+                    f"study folder studies/{self.id} holds a different definition; remove it"
                 )
             return
         payload = json.dumps(
@@ -282,16 +342,18 @@ class StudyStore:
             )
         cols = record_columns(records, self.fields)
         path = self.chunk_dir / f"{start}-{stop}.npz"
+        data = {"_start": np.array(start), "_stop": np.array(stop), "_retry": np.array(retry),
+                **cols}  # fmt: skip
+        digest = np.array(chunk_digest(data))  # checked by every read (_load_chunk)
 
         def write(tmp: Path) -> None:
             with open(tmp, "wb") as fh:
-                np.savez(fh, _start=start, _stop=stop, _retry=retry, **cols)
+                np.savez(fh, _sha256=digest, **data)
 
         atomic_write(path, write)
         self._forget(path.name)
         if self._held_points + stop - start <= HOLD_POINTS:
-            data = {"_start": np.array(start), "_stop": np.array(stop), "_retry": np.array(retry)}
-            self._held[path.name] = (_stamp(path.stat()), {**data, **cols})
+            self._held[path.name] = (_stamp(path.stat()), data)
             self._held_points += stop - start
         return path
 
@@ -312,14 +374,76 @@ class StudyStore:
         return sorted(out)
 
     def _load_chunk(self, path: Path) -> dict[str, np.ndarray] | None:
+        """A chunk file's arrays, checked; ``None`` if it vanished, or if it is damaged (then
+        it is set aside in ``damaged/`` and its points count as missing)."""
         held = self._held_chunk(path)
         if held is not None:
             return held
         try:
-            with np.load(path, allow_pickle=False) as z:
-                return {k: z[k] for k in z.files}
-        except (OSError, ValueError, KeyError, EOFError):
+            st = path.stat()
+        except FileNotFoundError:
             return None
+        except OSError as exc:
+            self._set_aside(path, None, f"cannot be read ({exc.strerror})")
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except FileNotFoundError:  # renamed away meanwhile (a run tidying up)
+            return None
+        except Exception as exc:  # noqa: BLE001 - BadZipFile, zlib.error, ValueError, EOFError…
+            problem = f"cannot be read ({type(exc).__name__}: {_no_path(exc, path)})"
+        else:
+            problem = self._chunk_problem(path.name, data)
+        if problem is not None:
+            self._set_aside(path, _stamp(st), problem)
+            return None
+        return data
+
+    def _chunk_problem(self, name: str, data: Mapping[str, np.ndarray]) -> str | None:
+        """What is wrong with a chunk file's arrays (``None``: nothing): the digest it holds,
+        the range its name says, one row per point in every column, every field there."""
+        m = _CHUNK.match(name)
+        assert m is not None  # only chunk names are listed
+        start, stop = int(m.group(1)), int(m.group(2))
+        digest = data.get("_sha256")
+        body = {k: v for k, v in data.items() if k != "_sha256"}
+        if digest is not None and str(digest) != chunk_digest(body):
+            return "its content does not match its SHA-256"
+        try:  # a chunk file written before digests has none: its shape is checked
+            if (int(data["_start"]), int(data["_stop"])) != (start, stop):
+                return f"it holds points {int(data['_start'])}-{int(data['_stop'])}"
+            bool(data["_retry"])
+        except (KeyError, TypeError, ValueError) as exc:
+            return f"its header is incomplete ({type(exc).__name__}: {exc})"
+        n = stop - start
+        for col in self.fields:
+            try:
+                a = _chunk_column(data, col, n)
+            except (KeyError, IndexError, ValueError):
+                return f"it lacks the column {col}"
+            if a.ndim == 0 or a.shape[0] != n:
+                return f"its column {col} has shape {a.shape}, not {n} rows"
+        return None
+
+    def _set_aside(self, path: Path, stamp: tuple[int, int, int] | None, problem: str) -> None:
+        """Move a damaged file to ``damaged/`` (kept for inspection) and log why; ``stamp``:
+        move it only while it is still the file that was checked (not one written since)."""
+        self._forget(path.name)
+        dest = self.folder / DAMAGED_DIR / f"{path.name}.{time.time_ns()}"
+        try:
+            if stamp is not None and _stamp(path.stat()) != stamp:
+                return  # replaced since it was read: the new file is checked when read
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(path, dest)
+        except FileNotFoundError:
+            return
+        except OSError as exc:
+            log.error("study %s: %s is damaged (%s) and cannot be set aside: %s",
+                      self.id, path, problem, exc)  # fmt: skip
+            return
+        log.warning("study %s: %s is damaged: %s; set aside as %s", self.id, path.name,
+                    problem, dest)  # fmt: skip
 
     def _held_chunk(self, path: Path) -> dict[str, np.ndarray] | None:
         """The columns of a chunk file this store wrote, if ``path`` is still that file (a
@@ -340,16 +464,18 @@ class StudyStore:
     def done_mask(self) -> np.ndarray:
         """Boolean mask of points whose results are stored (and need no retry).
 
-        Chunk files that cannot be read, or that hold retry-later failures, are removed so that
-        their points are computed again.
+        Chunk files that hold retry-later failures are removed, and damaged ones (or ones
+        outside the study) set aside in ``damaged/``, so that their points are computed again.
         """
         done = np.zeros(self.study.size, dtype=bool)
         for start, stop, path in self.chunks():
-            ok = 0 <= start < stop <= self.study.size
-            if ok:
-                data = self._load_chunk(path)
-                ok = data is not None and not bool(data["_retry"])
-            if not ok:
+            if not 0 <= start < stop <= self.study.size:
+                self._set_aside(path, None, f"the study has points 0-{self.study.size}")
+                continue
+            data = self._load_chunk(path)
+            if data is None:  # vanished, or damaged and set aside
+                continue
+            if bool(data["_retry"]):
                 path.unlink(missing_ok=True)
                 self._forget(path.name)
                 continue
@@ -370,7 +496,9 @@ class StudyStore:
                 with np.load(path, allow_pickle=False) as z:
                     if bool(z["_retry"]):
                         return True
-            except (OSError, ValueError, KeyError, EOFError):
+            except FileNotFoundError:
+                continue
+            except Exception:  # noqa: BLE001 - damaged (BadZipFile, …): computed again too
                 return True
         return False
 
@@ -381,11 +509,18 @@ class StudyStore:
         return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
     def collect(self) -> dict[str, np.ndarray]:
-        """Every point's stored results as flat arrays; raises if any point is missing."""
-        cols, filled = self._gather(strict=True)
+        """Every point's stored results as flat arrays.
+
+        Raises
+        ------
+        MissingPoints
+            Some point has no result (its chunk was never written, or was damaged and set
+            aside): a run of the study computes it.
+        """
+        cols, filled = self._gather()
         if not filled.all():
             n = filled.size
-            raise ValueError(f"{int((~filled).sum())} of {n} points have no results yet")
+            raise MissingPoints(f"{int((~filled).sum())} of {n} points have no results yet")
         return cols
 
     def collect_partial(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -421,10 +556,12 @@ class StudyStore:
                 continue
             start, stop, path = listing[name]
             data = self._load_chunk(path) if 0 <= start < stop <= n else None
-            if data is None:  # vanished or half-visible: try again at the next update
+            if data is None:  # vanished, or damaged and set aside
                 continue
-            if state.filled[start:stop].any():
-                raise ValueError(f"chunk file {path} overlaps another chunk")
+            if state.filled[start:stop].any():  # never written so; not shown twice
+                log.warning("study %s: chunk file %s overlaps another chunk; not read",
+                            self.id, name)  # fmt: skip
+                continue
             for col in self.fields:
                 state.cols[col][start:stop] = _chunk_column(data, col, stop - start)
             state.filled[start:stop] = True
@@ -445,18 +582,20 @@ class StudyStore:
             cols[name][:] = arr[0]
         return PartialState(cols=cols, filled=np.zeros(n, dtype=bool))
 
-    def _gather(self, strict: bool) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    def _gather(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
         n = self.study.size
         filled = np.zeros(n, dtype=bool)
         cols: dict[str, np.ndarray] = {}
         for start, stop, path in self.chunks():
-            data = self._load_chunk(path)
-            if data is None and not strict:
+            if not 0 <= start < stop <= n:
+                self._set_aside(path, None, f"the study has points 0-{n}")
                 continue
-            if data is None:
-                raise ValueError(f"chunk file {path} cannot be read")
-            if filled[start:stop].any():
-                raise ValueError(f"chunk file {path} overlaps another chunk")
+            data = self._load_chunk(path)
+            if data is None:  # vanished, or damaged and set aside: its points are missing
+                continue
+            if filled[start:stop].any():  # never written so: its points are computed again
+                self._set_aside(path, None, "it overlaps another chunk")
+                continue
             for name in self.fields:
                 a = _chunk_column(data, name, stop - start)
                 if name not in cols:
@@ -468,11 +607,99 @@ class StudyStore:
 
     # ---------------------------------------------------------------- results
 
+    @property
+    def results_sum_path(self) -> Path:
+        """Where the results file's SHA-256 is kept (``sha256sum`` format)."""
+        return self.folder / _RESULTS_SUM
+
     def write_results(self, ds: xr.Dataset) -> Path:
-        """Write the collated dataset atomically (NetCDF4, zlib)."""
+        """Write the collated dataset atomically (NetCDF4, zlib), then its SHA-256."""
         enc = encoding(ds)
-        atomic_write(self.results_path, lambda p: write_netcdf(ds, p, enc))
+
+        def write(tmp: Path) -> None:
+            write_netcdf(ds, tmp, enc)
+            # The sum goes first: a reader never finds the new file with the old sum (it would
+            # set a good file aside). A crash before the rename leaves the old file with the
+            # new sum: checked as damaged and rebuilt, never trusted.
+            self._write_sum(file_sha256(tmp))
+
+        atomic_write(self.results_path, write)
         return self.results_path
+
+    def _write_sum(self, digest: str) -> None:
+        text = f"{digest}  results.nc\n"
+        atomic_write(self.results_sum_path, lambda p: p.write_text(text, encoding="ascii"))
+
+    def _recorded_sum(self) -> str | None:
+        """The SHA-256 kept for the results file (``None``: none; ``""``: unreadable)."""
+        try:
+            text = self.results_sum_path.read_text(encoding="ascii")
+        except FileNotFoundError:
+            return None
+        except (OSError, UnicodeDecodeError):
+            return ""
+        digest = text.split(maxsplit=1)[0] if text.strip() else ""
+        return digest if re.fullmatch(r"[0-9a-f]{64}", digest) else ""
+
+    def results_status(self) -> str:
+        """``ok``, ``missing`` or ``damaged``: whether the results file is there and is what
+        was written (its SHA-256 matches the one kept beside it).
+
+        A damaged file (and its sum) is moved to ``damaged/`` and logged, so it is never read
+        or served; a run of the study writes it again. A results file without a sum (written
+        before sums were kept) is taken if it reads as this study's results, and its sum is
+        written then. Each file is hashed once per process while it is unchanged.
+        """
+        path = self.results_path
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            return "missing"
+        except OSError as exc:
+            problem = f"cannot be read ({exc.strerror})"
+            st = None
+        else:
+            with _VERIFIED_LOCK:
+                if _VERIFIED.get(str(path)) == _stamp(st):
+                    return "ok"
+            problem = self._results_problem(path)
+        if problem is not None:
+            with _VERIFIED_LOCK:
+                _VERIFIED.pop(str(path), None)
+            checked = None if st is None else _stamp(st)
+            self._set_aside(path, checked, problem)
+            try:
+                now: tuple[int, int, int] | None = _stamp(path.stat())
+            except FileNotFoundError:  # set aside: its sum goes with it
+                self._set_aside(self.results_sum_path, None, "its results file is damaged")
+                return "damaged"
+            except OSError:
+                return "damaged"
+            # Still there: it could not be moved (damaged), or a run wrote a new one meanwhile.
+            return "damaged" if now == checked or st is None else self.results_status()
+        with _VERIFIED_LOCK:
+            _VERIFIED[str(path)] = _stamp(st)
+        return "ok"
+
+    def _results_problem(self, path: Path) -> str | None:
+        """What is wrong with the results file (``None``: nothing)."""
+        try:
+            digest = file_sha256(path)
+        except OSError as exc:
+            return f"cannot be read ({exc.strerror})"
+        want = self._recorded_sum()
+        if want is None:  # written before sums were kept: taken if it reads as this study's
+            try:
+                attrs = open_results(path).attrs
+            except Exception as exc:  # noqa: BLE001 - any reader error: not a results file
+                return f"it has no SHA-256 and cannot be read ({type(exc).__name__})"
+            if attrs.get("study_id") != self.id:
+                return "it has no SHA-256 and is not this study's results"
+            self._write_sum(digest)
+            return None
+        if digest != want:
+            return "its content does not match its SHA-256" if want else "its SHA-256 is unreadable"
+        return None
 
     def remove_chunks(self) -> None:
         """Delete the chunk files once the results file holds them."""

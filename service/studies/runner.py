@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import logging
 import math
 import os
 import threading
@@ -46,7 +47,7 @@ from typing import Any
 
 from service.studies import forkserver
 from service.studies.adaptive_run import AdaptiveRun
-from service.studies.chunks import StudyStore, iter_chunk_ranges
+from service.studies.chunks import MissingPoints, StudyStore, iter_chunk_ranges
 from service.studies.dask_settings import user_set
 from service.studies.dataset import open_results, results_from_records, summarize
 from service.studies.limits import DEFAULT_CHUNK_SIZE
@@ -82,6 +83,10 @@ __all__ = [
     "warm_up",
 ]
 
+log = logging.getLogger("impactcell.runner")
+
+# Runs again of a study whose chunks were found damaged at collation (run_study).
+_RERUNS = 2
 # Points per task. Whatever its size, a task costs ~15 ms of CPU in dask (half in the command's
 # process, half in the worker) and ~5.5 ms to store its chunk (benchmarks/task_overhead.py). At
 # Figure 5's ~4 ms a point, 32 points a task added ~15 %; 96 (61 tasks instead of 182) made its
@@ -291,7 +296,8 @@ class StudyRun:
         self.shared = 0  # points of its chunks another run's task computed (ChunkPool)
         self.shared_pool = False  # another run was in its pool at the same time (ChunkPool)
         self.submitted = 0  # chunks handed to a pool (its fairness: fewer goes first)
-        self.cached = self.store.results_path.exists() and not self.store.has_retry_chunks()
+        # A results file that fails its check is set aside here, and rebuilt by this run.
+        self.cached = self.store.results_status() == "ok" and not self.store.has_retry_chunks()
         missing: list[tuple[int, int]] = []
         if not self.cached:
             self.store.prepare()
@@ -771,7 +777,41 @@ def run_study(
     Returns
     -------
     RunSummary
+
+    Chunk files found damaged at collation (set aside: ``service.studies.chunks``) are
+    computed again by another run, up to twice.
     """
+    kwargs = dict(scheduler=scheduler, workers=workers, chunk_size=chunk_size, client=client,
+                  serial=serial, progress=progress, max_in_flight=max_in_flight, cancel=cancel,
+                  on_chunk=on_chunk, limits=limits, points=points)  # fmt: skip
+    for again in range(_RERUNS, -1, -1):
+        try:
+            return _run_once(study, root, **kwargs)
+        except MissingPoints as exc:
+            if not again:
+                raise
+            log.warning("study %s: %s at collation (damaged chunks set aside); running it "
+                        "again", study.id, exc)  # fmt: skip
+    raise AssertionError("unreachable")
+
+
+def _run_once(
+    study: Study,
+    root: str | os.PathLike[str] | None,
+    *,
+    scheduler: str | None,
+    workers: int | None,
+    chunk_size: int | None,
+    client: Any,
+    serial: bool,
+    progress: Progress | None,
+    max_in_flight: int | None,
+    cancel: Callable[[], bool] | None,
+    on_chunk: ChunkDone | None,
+    limits: PointLimits | None,
+    points: PointStore | None,
+) -> RunSummary:
+    """One run of :func:`run_study`."""
     stop_now = cancel or (lambda: False)
     limits = limits or PointLimits()
     own_client = own_cluster = None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import logging
 import threading
 from collections import OrderedDict
 from pathlib import Path
@@ -38,11 +39,13 @@ from service.studies.dataset import (
 from service.studies.schema import Study, study_from_canonical
 
 router = APIRouter(prefix="/studies/{study_id}", tags=["results"])
+log = logging.getLogger("impactcell.api")
 
 RESULT_ERRORS: dict[int | str, dict[str, Any]] = {
     401: {"model": ErrorOut, "description": "missing or wrong bearer token"},
     404: {"model": ErrorOut, "description": "no such study"},
     422: {"model": ErrorOut, "description": "bad selection (names the field and the value)"},
+    503: {"model": ErrorOut, "description": "results file damaged or missing: being rebuilt"},
 }
 # Query parameters with a meaning of their own; every other one selects a coordinate value.
 _RESERVED = {"variable", "reference", "nearest", "x", "y", "threshold_db", "hue", "periods",
@@ -181,16 +184,57 @@ def study_of(catalogue: Catalogue, study_id: str) -> tuple[dict[str, Any], Study
     return rec, study_from_canonical(rec["definition"], source=f"study {study_id}")
 
 
-def _results_file(rec: dict[str, Any], store: StudyStore) -> Path | None:
-    """The complete results file, when it is the study's current data."""
-    path = store.results_path
-    if not path.is_file():
-        return None
+def _results_file(catalogue: Catalogue, rec: dict[str, Any], store: StudyStore) -> Path | None:
+    """The complete results file, checked, when it is the study's current data (``None``: the
+    data is the partial dataset of the study's chunks).
+
+    A finished study's file that is missing or fails its check (set aside by
+    :meth:`StudyStore.results_status`) is a 503: the study is queued to write it again.
+    """
     if rec["status"] == "finished":
-        return path
+        status = store.results_status()
+        if status != "ok":
+            raise _rebuild(catalogue, rec, status)
+        return store.results_path
+    if store.results_status() != "ok":
+        return None
     # A results file of an earlier run while failed tasks are retried: the chunks are newer.
     state, _, _ = _partials.get(store)
-    return None if state.has_retry else path
+    return None if state.has_retry else store.results_path
+
+
+def _rebuild(catalogue: Catalogue, rec: dict[str, Any], status: str) -> HTTPException:
+    """Queue a finished study whose results file is missing or damaged, so that a run writes
+    it again (from its chunks and the point store; only points neither holds are computed);
+    the 503 that says so."""
+    sid = rec["id"]
+    if catalogue.set_status_if(sid, ("finished",), "queued", finished_at=None, error=None):
+        log.warning("study %s: results file %s; queued to write it again", sid, status)
+    why = "is missing" if status == "missing" else "failed its SHA-256 check and was set aside"
+    return HTTPException(
+        503,
+        f"the results file of study {sid} {why}; the study is queued to write it again from its "
+        f"finished points (computing only points the service does not hold); retry in a few "
+        f"seconds (GET /studies/{sid} shows its progress; until it finishes, results are "
+        f"partial)",
+        headers={"Retry-After": "5"},
+    )
+
+
+def _open_checked(catalogue: Catalogue, rec: dict[str, Any], store: StudyStore,
+                  path: Path) -> xr.Dataset:  # fmt: skip
+    """The checked results file, opened (a file replaced or damaged since its check: 503)."""
+    try:
+        return _cache.get(path)
+    except (OSError, ValueError):  # never the reader's message: it names the server's path
+        status = store.results_status()
+        if status != "ok" and rec["status"] == "finished":
+            raise _rebuild(catalogue, rec, status) from None
+        raise HTTPException(  # replaced while opened, or set aside (the next answer: partial)
+            503,
+            f"the results file of study {rec['id']} could not be opened; retry",
+            headers={"Retry-After": "1"},
+        ) from None
 
 
 def load_dataset(
@@ -201,15 +245,17 @@ def load_dataset(
     store = StudyStore(settings.data_dir, study)
     if study.is_adaptive:
         # Its points are placed on the union of what its lines sampled, known at the end.
-        if rec["status"] == "finished" and store.results_path.is_file():
-            return _cache.get(store.results_path), store.results_path
+        if rec["status"] == "finished":
+            path = _results_file(catalogue, rec, store)
+            assert path is not None  # a finished study's file, or a 503
+            return _open_checked(catalogue, rec, store, path), path
         raise HTTPException(
             409, f"study {study_id} is adaptive and {rec['status']}: its dataset is assembled "
             "when it finishes (its points so far: GET /points?study=" + study_id + ")",
         )  # fmt: skip
-    path = _results_file(rec, store)
+    path = _results_file(catalogue, rec, store)
     if path is not None:
-        return _cache.get(path), path
+        return _open_checked(catalogue, rec, store, path), path
     _, ds, _ = _partials.get(store)
     return ds, None
 
@@ -267,7 +313,7 @@ def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -
         _, path = load_dataset(settings, catalogue, study_id)  # 409 until it finishes
         return FileResponse(path, media_type=NETCDF, filename=f"{study_id}.nc",
                             headers={"X-Impactcell-Partial": "0"})  # fmt: skip
-    path = _results_file(rec, store)
+    path = _results_file(catalogue, rec, store)  # checked: never a file that fails its sum
     partial = path is None
     if path is None:
         _, _, path = _partials.get(store, netcdf=True)
