@@ -18,7 +18,7 @@ __all__ = ["COMPILED_FUNCTIONS", "compile_progress"]
 
 #: Functions a full compilation of each method compiles alone (numba's ``numba:compile`` events
 #: of ``warm_up`` on an empty cache): the denominator of the progress line, so "about".
-#: ``python -m worker.compile_progress METHOD`` counts them again.
+#: ``python benchmarks/compile_count.py METHOD`` counts them again.
 COMPILED_FUNCTIONS = {"event": 238, "exponential": 136, "euler": 140}
 
 
@@ -83,23 +83,3 @@ def compile_progress(
     finally:
         progress.close()
 
-
-def _count(method: str) -> None:
-    """Compile ``method``'s kernels into an empty cache and print how many functions that is."""
-    import json
-    import os
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as cache:
-        os.environ["NUMBA_CACHE_DIR"] = cache  # before numba loads: nothing comes from a cache
-        from worker.simulate import warm_up
-
-        t0 = time.perf_counter()
-        with compile_progress(method, every_s=float("inf")) as progress:
-            warm_up(method, quiet=True)
-        seconds = round(time.perf_counter() - t0, 1)
-        print(json.dumps({"method": method, "functions": progress.done, "seconds": seconds}))
-
-
-if __name__ == "__main__":
-    _count(sys.argv[1] if len(sys.argv) > 1 else "event")
