@@ -82,4 +82,3 @@ def compile_progress(
             yield progress
     finally:
         progress.close()
-
