@@ -26,10 +26,11 @@
   const MASS_VARIABLES = { theta_eff: "effective mass θ_eff (first harmonic)",
     theta_eff_slope: "phase-portrait ratio θ_ps (all harmonics; θ_eff only without impacts)" };
   const TRANSIENT = 5; // charts.js: an irregular point flagged may_be_transient
+  // The example study: the default solver, so that every point settles (linear, periodic or
+  // irregular; tests/service/web/test_page.py runs it), in a few seconds.
   const EXAMPLE = [
     "name: my-first-study",
     "description: Γ over frequency at two gaps",
-    "solver: {steps_per_period: 256, max_periods: 60}",
     "grid:",
     "  gamma_r: {start: 0.5, stop: 3.0, num: 12}",
     "  gap: [0.1, 0.5]",
@@ -570,9 +571,11 @@
      * dataset's `pending`; its `outcome` there is a placeholder, not a failure), TRANSIENT
      * where an irregular point may be transient. */
     async function outcomeGrid() {
+      // only an adaptive study has `sampled` (asking another for it is an error, 422)
+      const adaptive = Boolean((rec().definition || {}).adaptive);
       const [o, pending, sampled, transient] = await Promise.all([slice("outcome").catch(() => null),
         rec().status === "finished" ? null : slice("pending").catch(() => null),
-        slice("sampled").catch(() => null), slice("may_be_transient").catch(() => null)]);
+        adaptive ? slice("sampled").catch(() => null) : null, slice("may_be_transient").catch(() => null)]);
       if (!o) return null;
       let grid = grid2d(o, state.x, state.y);
       if (transient) {
