@@ -413,8 +413,9 @@ class Client:
         """The hysteresis map of a sweep or multi-start study (``GET /studies/{id}/hysteresis``)
         as the service sends it: ``branches`` (``up``, ``down``, each initial state: label,
         values along ``axes.x``, outcomes, jumps), ``jumps`` (label, branch, from, to,
-        size_db), ``differing`` (intervals of x where the branches differ), ``responses``,
-        ``slice`` and the thresholds with their meaning. ``x`` defaults to the swept axis;
+        size_db, kind: discontinuities only, docs/service.md), ``differing`` (intervals of x
+        where the branches differ), ``responses``, ``slice`` and the thresholds with their
+        meaning. ``x`` defaults to the swept axis;
         ``direction=``/``initial=`` keep only those branches; ``jump_db`` and ``tol_db``
         default to the service's (1 and 0.05 dB). A study without a sweep or several starts
         is an :class:`InvalidRequest`.

@@ -32,6 +32,7 @@ from matplotlib.colors import TwoSlopeNorm
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
+from matplotlib.ticker import FuncFormatter
 
 from service.analysis.bands import EDGE_KINDS, band_edges
 from service.analysis.hysteresis import fixed_of
@@ -70,9 +71,48 @@ def _units(da: xr.DataArray) -> str:
     return "–" if u in ("", "1") else u
 
 
+#: Prefixed units figures write an SI axis in, largest first, with the factor of each: the
+#: largest whose value is at least 0.1 is used (0.0005 m is 0.5 mm, 0.02 kg is 20 g).
+_PREFIXES: dict[str, tuple[tuple[str, float], ...]] = {
+    "m": (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9)),
+    "Pa": (("GPa", 1e9), ("MPa", 1e6), ("kPa", 1e3), ("Pa", 1.0)),
+    "kg": (("kg", 1.0), ("g", 1e-3), ("mg", 1e-6)),
+    "N m-1": (("kN m-1", 1e3), ("N m-1", 1.0)),
+}
+
+
+def _scale(name: str, values: Any, units: str | None = None) -> tuple[float, str]:
+    """The factor and (prefixed) units an axis's ``values`` are written in: ``(1e-3, "mm")``
+    for gaps in metres below a metre; units from the coordinate, else the axis registry."""
+    if units is None:
+        info = AXES.get(name)
+        units = info.units if info is not None else ""
+    choices = _PREFIXES.get(units)
+    if not choices:
+        return 1.0, units
+    v = np.abs(np.asarray(values, dtype=np.float64).ravel())
+    big = float(v[np.isfinite(v)].max()) if np.isfinite(v).any() else 0.0
+    for text, factor in choices:
+        if big / factor >= 0.1:
+            return factor, text
+    return choices[-1][1], choices[-1][0]
+
+
+def _quantity(name: str, value: Any, units: str | None = None, scale: Any = None) -> str:
+    """``θ = 0.3``, ``gap = 0.5 mm``: an axis's symbol and value in its (prefixed) units;
+    ``scale`` (values) chooses the prefix, so that the entries of one legend share it."""
+    v = np.asarray(value).item()
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return f"{axis_symbol(name)} = {v}"
+    factor, u = _scale(name, value if scale is None else scale, units)
+    u = "" if u in ("", "1") else f" {u}"
+    return f"{axis_symbol(name)} = {_value(v / factor)}{u}"
+
+
 def _axis_label(name: str, coord: xr.DataArray) -> str:
-    """``γ_r = Ω/ω_b (–)``, ``frequency (Hz)``, ``gap_m (m)``."""
-    units = _units(coord)
+    """``γ_r = Ω/ω_b (–)``, ``frequency (Hz)``, ``gap (mm)``."""
+    _, units = _scale(name, coord.values, str(coord.attrs.get("units", "") or ""))
+    units = "–" if units in ("", "1") else units
     info = AXES.get(name)
     if info is not None and info.label:
         return f"{info.label} ({units})"
@@ -81,21 +121,27 @@ def _axis_label(name: str, coord: xr.DataArray) -> str:
     return f"{text} ({units})"
 
 
+def _label_axis(axis: Any, name: str, coord: xr.DataArray) -> None:
+    """Label a matplotlib axis with :func:`_axis_label`, its ticks in the same prefixed units."""
+    axis.set_label_text(_axis_label(name, coord))
+    factor, _ = _scale(name, coord.values, str(coord.attrs.get("units", "") or ""))
+    if factor != 1.0:
+        axis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v / factor:.6g}"))
+
+
 def _value(v: Any) -> str:
     v = np.asarray(v).item()
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
 def _subtitle(da: xr.DataArray, skip: Sequence[str] = ()) -> str:
-    """The fixed parameters of a slice (its 0-d coordinates), e.g. ``θ = 0.3, σ = 0.05``."""
-    parts = []
-    for name, c in da.coords.items():
-        if c.ndim == 0 and name not in skip and c.dtype.kind in "iuf":
-            units = _units(c)
-            parts.append(
-                f"{axis_symbol(str(name))} = {_value(c.values)}"
-                + ("" if units == "–" else f" {units}")
-            )
+    """The fixed parameters of a slice (its 0-d coordinates), e.g. ``θ = 0.3, σ = 0.05``; the
+    axes fixed by default are in ``skip`` (:func:`_fixed_text` names them)."""
+    parts = [
+        _quantity(str(name), c.values, str(c.attrs.get("units", "") or "") or None)
+        for name, c in da.coords.items()
+        if c.ndim == 0 and name not in skip and c.dtype.kind in "iuf"
+    ]
     lines, line = [], ""
     for p in parts:  # wrap so that a physical study's many parameters stay readable
         if line and len(line) + len(p) > 95:
@@ -130,12 +176,11 @@ def _png(fig: Figure, fmt: Format = "png") -> bytes:
 
 
 def _fixed_text(fixed: Mapping[str, Any] | None) -> str:
-    """``fixed at their first value (select others): θ = 0.1`` for defaulted axes."""
+    """``by default at the first value: θ = 0.1`` for defaulted axes (how to choose others
+    is the API's to say: the ``X-Impactcell-Fixed`` header and the JSON's ``slice``)."""
     if not fixed:
         return ""
-    parts = ", ".join(f"{axis_symbol(k)} = {_value(v)}" for k, v in fixed.items())
-    names = ", ".join(fixed)
-    return f"by default at the first value (choose with {names}=…): {parts}"
+    return "by default at the first value: " + ", ".join(_quantity(k, v) for k, v in fixed.items())
 
 
 def _title(*lines: str) -> str:
@@ -313,9 +358,10 @@ def transmittance_figure(
     taken = np.atleast_2d(_taken(names))
     rows = [da] if hue is None else [da.isel({hue: k}) for k in range(da.sizes[hue])]
     cmap = matplotlib.colormaps["viridis"]
+    hue_units = None if hue is None else str(da[hue].attrs.get("units", "") or "") or None
     for k, row in enumerate(rows):
         color = "C0" if hue is None else cmap(k / max(len(rows) - 1, 1) * 0.9)
-        label = "Γ" if hue is None else f"{axis_symbol(hue)} = {_value(row[hue].values)}"
+        label = "Γ" if hue is None else _quantity(hue, row[hue].values, hue_units, da[hue].values)
         on = taken[k]
         ax.plot(xv[on], row.values[on], marker=".", ms=3, lw=1.2, color=color, label=label)
         if lin is not None:
@@ -326,9 +372,9 @@ def transmittance_figure(
         ax.plot([], [], ls="--", lw=0.8, color="0.3", label="Γ_lin: the cell without stops")
     ax.axhline(0.0, color="k", lw=0.8, ls=":", label="0 dB")
     _mark_outcomes(ax, xv, da.values.astype(np.float64), names)
-    ax.set_xlabel(_axis_label(x, da[x]))
+    _label_axis(ax.xaxis, x, da[x])
     ax.set_ylabel("transmittance Γ (dB)")
-    sub = _subtitle(da, skip=(x,) if hue is None else (x, hue))
+    sub = _subtitle(da, skip=(x, *(fixed or {})) if hue is None else (x, hue, *(fixed or {})))
     ax.set_title(_title(sub, _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
     _legend(ax, loc="best", title=None if hue is None else axis_symbol(hue))
@@ -408,9 +454,9 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
         "impact_effect_db": f"where impacts add attenuation ({symbol} < {thr:g} dB)",
         "transmittance_linear_db": f"bands of the cell without stops ({symbol} < {thr:g} dB)",
     }.get(variable, f"attenuation bands ({symbol} < {thr:g} dB)")
-    sub = _subtitle(gamma, skip=(x, y or "", "band"))
+    sub = _subtitle(gamma, skip=(x, y or "", "band", *(fixed or {})))
     ax.set_title(_title(title, sub, _fixed_text(fixed)), fontsize=9)
-    ax.set_xlabel(_axis_label(x, map_ds[x]))
+    _label_axis(ax.xaxis, x, map_ds[x])
 
     if y is None:
         g = gamma.values.astype(np.float64)
@@ -490,8 +536,10 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
             ):
                 is_open = kind in open_kinds
                 c = "0.45" if kind == uncertain else "k"
+                # above the outcome marks (zorder 4): an edge is never hidden under a mark
                 ax.plot([val], [yy], marker=sym if is_open else "|", ms=7 if is_open else 11,
-                        mew=1.8, color=c, mfc="none" if is_open else c, ls="none")  # fmt: skip
+                        mew=1.8, color=c, mfc="none" if is_open else c, ls="none", zorder=5,
+                        gid="band-edge")  # fmt: skip
     kinds = {int(e[r, k]) for e in (s_edge, e_edge) for r in range(len(yv))
              for k in range(int(counts[r]))}  # fmt: skip
     if kinds & {EDGE_KINDS.index("crossing")}:
@@ -528,7 +576,7 @@ def bandgap_figure(map_ds: xr.Dataset, *, fixed: Mapping[str, Any] | None = None
         handles.append(Patch(facecolor="0.75", label=f"missing ({missing})"))
     ax.set_xlim(xe[0], xe[-1])
     ax.set_ylim(ye[0], ye[-1])
-    ax.set_ylabel(_axis_label(y, map_ds[y]))
+    _label_axis(ax.yaxis, y, map_ds[y])
     if handles:
         fig.legend(handles=handles, fontsize=7, loc="outside lower center",
                    ncols=min(len(handles), 4))  # fmt: skip
@@ -613,10 +661,11 @@ def effective_mass_figure(
     both = np.abs(both[np.isfinite(both)])
     if both.size and both.max() > 100 * max(np.median(both), 1.0):
         ax.set_yscale("symlog", linthresh=1.0)
-    ax.set_xlabel(_axis_label(x, harmonic[x]))
+    _label_axis(ax.xaxis, x, harmonic[x])
     ax.set_ylabel("effective mass ratio θ_eff" + (", θ_ps" if drawn_slope else "") + " (–)")
     what = "effective mass θ_eff: first harmonic at γ_r; shaded where negative"
-    ax.set_title(_title(what, _subtitle(harmonic, skip=(x,)), _fixed_text(fixed)), fontsize=9)
+    sub = _subtitle(harmonic, skip=(x, *(fixed or {})))
+    ax.set_title(_title(what, sub, _fixed_text(fixed)), fontsize=9)
     ax.grid(True, lw=0.4, alpha=0.5)
     _legend(ax, loc="best")
     return fig
@@ -660,7 +709,9 @@ def hysteresis_figure(h: xr.Dataset, *, fixed: Mapping[str, Any] | None = None) 
     Every branch is a curve (up and down in two colours, with ``>``/``<`` markers pointing the
     way the sweep went; initial states in their own colours, or line styles under a sweep),
     broken at its jumps; each jump is a vertical dashed segment (``gid`` ``jump``) at the x the
-    branch lands on, from the value before to the value after, labelled ``J1``, ...; the grid
+    branch lands on, from the value before to the value after, labelled ``J1``, ... (``gid``
+    ``jump-label``; when any two labels would overlap, none is drawn and the legend lists the
+    jumps instead, :data:`_LISTED_JUMPS` at most); the grid
     cells where the branches differ are shaded (``gid`` ``differs``, edges at the midpoints
     between grid points, :func:`cell_edges`); irregular, unsettled and failed points are marked
     as in every figure (:data:`MARKS`). The legend counts points per branch, jumps, differing
@@ -712,14 +763,18 @@ def hysteresis_figure(h: xr.Dataset, *, fixed: Mapping[str, Any] | None = None) 
                     gid=f"branch-{labels[b]}",
                     label=f"{labels[b]} ({n} points)" if s == 0 else None)  # fmt: skip
     stacked: dict[float, int] = {}  # labels of jumps at one x go one under the other
+    texts = []
     for k in range(jb.size):
         color = styles[jb[k]]
         row_k = stacked[float(j_to[k])] = stacked.get(float(j_to[k]), -1) + 1
         jump_label = f"jump > {jump_db:g}{u} ({jb.size})" if k == 0 else None
         ax.plot([j_to[k], j_to[k]], [j_v0[k], j_v1[k]], ls="--", lw=1.4, color=color,
                 gid="jump", label=jump_label)  # fmt: skip
-        ax.annotate(j_lab[k], (j_to[k], 0.5 * (j_v0[k] + j_v1[k])), xytext=(3, -9 * row_k),
-                    textcoords="offset points", fontsize=7, color=color)  # fmt: skip
+        texts.append(ax.annotate(
+            j_lab[k], (j_to[k], 0.5 * (j_v0[k] + j_v1[k])), xytext=(3, -9 * row_k),
+            textcoords="offset points", fontsize=7, color=color, gid="jump-label", zorder=6,
+            bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8},
+        ))  # fmt: skip
 
     if "outcome" in h.data_vars:
         names = outcome_names(h["outcome"]).astype(object)
@@ -737,12 +792,39 @@ def hysteresis_figure(h: xr.Dataset, *, fixed: Mapping[str, Any] | None = None) 
         if several:
             ax.plot([], [], " ", label=f"2 or more responses ({several} points)")
     title = f"hysteresis of {symbol} along {axis_symbol(x)}: {len(labels)} branches"
-    ax.set_title(_title(title, _subtitle(da, skip=(x,)), _fixed_text(fixed)), fontsize=9)
-    ax.set_xlabel(_axis_label(x, h[x]))
+    sub = _subtitle(da, skip=(x, *fixed))
+    ax.set_title(_title(title, sub, _fixed_text(fixed)), fontsize=9)
+    _label_axis(ax.xaxis, x, h[x])
     ax.set_ylabel(label)
     ax.grid(True, lw=0.4, alpha=0.5)
+    if _overlapping(fig, texts):
+        # Labels that would pile over each other go to the legend, one line per jump.
+        factor, xu = _scale(x, xv, str(h[x].attrs.get("units", "") or ""))
+        xu = "" if xu in ("", "1") else f" {xu}"
+        for t in texts:
+            t.remove()
+        for k in range(min(jb.size, _LISTED_JUMPS)):
+            ax.plot([], [], ls="--", lw=1.4, color=styles[jb[k]],
+                    label=f"{j_lab[k]} {labels[jb[k]]}: {axis_symbol(x)} "
+                    f"{_value(j_from[k] / factor)} → {_value(j_to[k] / factor)}{xu}, "
+                    f"{j_v1[k] - j_v0[k]:+.3g}{u}")  # fmt: skip
+        if jb.size > _LISTED_JUMPS:
+            ax.plot([], [], " ", label=f"… {jb.size - _LISTED_JUMPS} more jumps (JSON, CSV)")
     _legend(ax, loc="best")
     return fig
+
+
+_LISTED_JUMPS = 8  # jumps a hysteresis figure's legend lists when their labels would overlap
+
+
+def _overlapping(fig: Figure, texts: Sequence[Any]) -> bool:
+    """Whether any two of ``texts`` overlap once the figure is laid out."""
+    if len(texts) < 2:
+        return False
+    fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    boxes = [t.get_window_extent(renderer) for t in texts]
+    return any(a.overlaps(b) for a, b in itertools.combinations(boxes, 2))
 
 
 def hysteresis_png(

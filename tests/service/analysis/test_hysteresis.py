@@ -321,7 +321,9 @@ def test_figure_shows_branches_jumps_region_and_counts() -> None:
     assert "2 or more responses (4 points)" in text
     assert "irregular (1)" in text and "failed (1)" in text
     assert "J1" in [t.get_text() for t in ax.texts]
-    assert "by default at the first value" in ax.get_title() and "gap" in ax.get_title()
+    # the axis fixed by default is named once, without an API hint
+    assert ax.get_title().count("g̃ = 0.1") == 1 and "choose with" not in ax.get_title()
+    assert ax.get_title().endswith("by default at the first value: g̃ = 0.1")
 
 
 def test_figure_of_initial_states_and_formats() -> None:
@@ -337,3 +339,104 @@ def test_figure_of_initial_states_and_formats() -> None:
     assert b"<svg" in svg[:500]
     with pytest.raises(AnalysisError, match="format='gif'"):
         hysteresis_png(hysteresis_map(sweep_ds()), fmt="gif")  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- what a jump is
+
+R = np.round(np.arange(0.5, 2.001, 0.05), 10)  # 31 frequencies: coarse for a resonance
+
+
+def resonance_db(r: np.ndarray, xi: float = 0.05) -> np.ndarray:
+    """A 1-DOF resonance in dB: 20 dB at r = 1, flanks up to 4 dB a grid step on ``R``."""
+    return -10 * np.log10((1 - r**2) ** 2 + (2 * xi * r) ** 2)
+
+
+def leaning_db(r: np.ndarray) -> np.ndarray:
+    """The upper sheet of a hardening resonance: equal to the resonance up to r = 0.95, then
+    its peak follows the drive (about 19 dB at r = 1.3, 13.5 dB at 2)."""
+    return resonance_db(r / (1 + 0.8 * np.clip(r - 0.95, 0, None)))
+
+
+def branches_ds(up: np.ndarray, down: np.ndarray, x: np.ndarray = R) -> xr.Dataset:
+    """A γ_r sweep study's results with these two branches."""
+    return xr.Dataset(
+        {"transmittance_db": (("direction", "gamma_r"), np.stack([up, down]), {"units": "dB"})},
+        coords={"direction": ["up", "down"], "gamma_r": ("gamma_r", x, {"units": "1"})},
+        attrs={"sweep_axis": "gamma_r"},
+    )
+
+
+@pytest.mark.parametrize("x", [R, np.linspace(0.5, 3.0, 12)], ids=["31 points", "12 points"])
+def test_a_smooth_steep_resonance_on_a_coarse_grid_has_no_jump(x: np.ndarray) -> None:
+    curve = resonance_db(x)
+    assert np.sum(np.abs(np.diff(curve)) > 1.0) >= 10  # steps over jump_db all along
+    h = hysteresis_map(branches_ds(curve, curve, x))
+    assert h.sizes["jump"] == 0 and h.sizes["region"] == 0
+    # nor when it is the only branch (nothing to compare with), or along a gentler grid
+    assert hysteresis_map(branches_ds(curve, curve, x), sel={"direction": "up"}).sizes["jump"] == 0
+    fig = hysteresis_figure(h)
+    assert _lines(fig, "jump") == [] and len(fig.axes[0].texts) == 0
+
+
+def test_a_fold_is_one_jump_per_branch_where_the_sheets_part() -> None:
+    lower, upper = resonance_db(R), leaning_db(R)
+    up = np.where(R <= 1.3 + 1e-9, upper, lower)  # rides the upper sheet, falls off at 1.3
+    down = np.where(R >= 1.15 - 1e-9, lower, upper)  # climbs onto it below 1.15
+    h = hysteresis_map(branches_ds(up, down))
+    doc = hysteresis_json(h)
+    assert [(j["branch"], j["kind"]) for j in doc["jumps"]] == [
+        ("up", "discontinuity"), ("down", "discontinuity")
+    ]  # fmt: skip
+    assert doc["jumps"][0]["interval"] == pytest.approx([1.3, 1.35])
+    assert doc["jumps"][0]["size_db"] < -15  # from the upper sheet to the lower one
+    assert doc["jumps"][1]["from"] == pytest.approx(1.15)
+    assert doc["jumps"][1]["to"] == pytest.approx(1.1)
+    assert [(r["start"], r["stop"]) for r in doc["differing"]] == [pytest.approx((1.15, 1.3))]
+    assert "neighbouring step" in doc["jump_db"]["meaning"]
+
+
+def test_a_step_onto_another_branch_along_a_steep_slope_is_a_jump() -> None:
+    # Both fall 4 dB a step; "up" runs 6 dB above "down" and joins it between 1.0 and 1.05:
+    # a 10 dB step that the neighbouring slopes (4 dB a step) explain within a factor 3, but
+    # it leaves one response for another.
+    down = -80.0 * R
+    up = np.where(R <= 1.0 + 1e-9, down + 6.0, down)
+    h = hysteresis_map(branches_ds(up, down))
+    doc = hysteresis_json(h)
+    assert [(j["branch"], j["kind"]) for j in doc["jumps"]] == [("up", "branch change")]
+    assert doc["jumps"][0]["interval"] == pytest.approx([1.0, 1.05])
+    assert doc["jumps"][0]["size_db"] == pytest.approx(-10.0)
+    # the same step with no other branch to join: the slope explains it
+    assert hysteresis_map(branches_ds(up, down), sel={"direction": "up"}).sizes["jump"] == 0
+
+
+def _boxes(fig: Figure) -> list:
+    fig.draw_without_rendering()
+    renderer = fig.canvas.get_renderer()
+    return [t.get_window_extent(renderer) for t in fig.axes[0].texts]
+
+
+def test_jump_labels_never_overlap_crowded_jumps_are_listed_in_the_legend() -> None:
+    # the sweep: two labels far apart, drawn on the figure
+    fig = hysteresis_figure(hysteresis_map(sweep_ds()))
+    assert sorted(t.get_text() for t in fig.axes[0].texts) == ["J1", "J2"]
+    # twelve starts on a fine grid, each jumping by 5 dB one grid point after the previous
+    # one: the labels would pile up, so none is drawn and the legend lists the jumps
+    fine = np.round(np.linspace(0.5, 2.0, 151), 10)
+    starts = [f"random-{k}" for k in range(12)]
+    gamma = np.stack([np.where(fine >= 1.0 + 0.01 * k - 1e-9, -5.0, 0.0) for k in range(12)])
+    ds = xr.Dataset(
+        {"transmittance_db": (("initial", "gamma_r"), gamma, {"units": "dB"})},
+        coords={"initial": starts, "gamma_r": ("gamma_r", fine, {"units": "1"})},
+    )
+    h = hysteresis_map(ds)
+    assert h.sizes["jump"] == 12
+    fig = hysteresis_figure(h)
+    assert len(fig.axes[0].texts) == 0 and len(_lines(fig, "jump")) == 12
+    text = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "J1 random-0: γ_r 0.99 → 1, -5 dB" in text
+    assert sum(t.startswith("J") for t in text) == 8 and "… 4 more jumps (JSON, CSV)" in text
+    # wherever labels are drawn, no two overlap
+    for h_ in (hysteresis_map(sweep_ds()), hysteresis_map(multistart_ds(True))):
+        boxes = _boxes(hysteresis_figure(h_))
+        assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1 :])

@@ -385,3 +385,53 @@ def test_points_not_computed_yet_are_counted_not_marked_as_failed() -> None:
     ax = transmittance_figure(ds, {"theta": 0.3}, hue="gap").axes[0]
     texts = _legend_texts(ax.get_legend())
     assert "not computed yet (45)" in texts and "failed (1)" in texts
+
+
+def test_band_edges_are_drawn_above_the_outcome_marks() -> None:
+    from service.analysis.plots import bandgap_figure
+
+    ds = _with_outcomes()
+    m = bandgap_map(ds, "gamma_r", "gap", threshold_db=-3, sel={"theta": 0.3})
+    ax = bandgap_figure(m).axes[0]
+    edges = _gid(ax, "band-edge")
+    marks = [ln for ln in ax.get_lines() if str(ln.get_gid()).startswith("outcome-")]
+    assert edges and marks
+    assert min(e.get_zorder() for e in edges) > max(k.get_zorder() for k in marks)
+
+
+def _si() -> xr.Dataset:
+    """Γ over gap_m × frequency_hz of a physical study, its cell's SI constants 0-d."""
+    f = np.linspace(50.0, 400.0, 8)
+    gaps = np.array([1e-4, 3e-4, 5e-4])
+    gamma = -np.outer(gaps * 1e4, np.ones(f.size)) - f / 100
+    return xr.Dataset(
+        {"transmittance_db": (("gap_m", "frequency_hz"), gamma, {"units": "dB"})},
+        coords={
+            "gap_m": ("gap_m", gaps, {"units": "m"}),
+            "frequency_hz": ("frequency_hz", f, {"units": "Hz"}),
+            "length_m": ((), 0.03, {"units": "m"}),
+            "youngs_modulus_pa": ((), 2e11, {"units": "Pa"}),
+            "outer_mass_kg": ((), 0.02, {"units": "kg"}),
+            "damping_ratio": ((), 0.02, {"units": "1"}),
+        },
+    )
+
+
+def test_si_axes_read_in_prefixed_units() -> None:
+    from service.analysis.plots import bandgap_figure, transmittance_figure
+
+    ds = _si()
+    ax = transmittance_figure(ds, hue="gap_m", fixed={"length_m": 0.03}).axes[0]
+    texts = _legend_texts(ax.get_legend())
+    assert {"gap = 0.1 mm", "gap = 0.3 mm", "gap = 0.5 mm"} <= set(texts)
+    assert not any("gap_m" in t or "0.0005" in t for t in texts)
+    title = ax.get_title()
+    assert "E = 200 GPa" in title and "outer mass = 20 g" in title
+    assert "damping ratio = 0.02" in title  # dimensionless: no unit
+    assert title.endswith("by default at the first value: length = 30 mm")
+    assert title.count("length") == 1
+    assert ax.get_xlabel() == "frequency (Hz)"
+    # a map with the gap along y: its label and ticks in mm
+    ax = bandgap_figure(bandgap_map(ds, "frequency_hz", "gap_m", threshold_db=-3)).axes[0]
+    assert ax.get_ylabel() == "gap (mm)"
+    assert ax.yaxis.get_major_formatter()(3e-4, 0) == "0.3"

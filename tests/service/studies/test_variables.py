@@ -35,7 +35,8 @@ def test_every_variable_has_units_a_long_name_and_a_known_kind() -> None:
 
 
 def test_symbols_and_the_default_x() -> None:
-    assert axis_symbol("gamma_r") == "γ_r" and axis_symbol("length_m") == "length_m"
+    assert axis_symbol("gamma_r") == "γ_r" and axis_symbol("gap_m") == "gap"
+    assert axis_symbol("initial") == "initial" and axis_symbol("nope") == "nope"
     assert default_x(["gap", "gamma_r"]) == "gamma_r"
     assert default_x(["length_m", "frequency_hz"]) == "frequency_hz"
     assert default_x(["gap"]) is None

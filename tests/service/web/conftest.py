@@ -48,13 +48,18 @@ def browser() -> Iterator[Any]:
 @pytest.fixture
 def page(browser: Any) -> Iterator[Any]:
     """A fresh tab (own session storage) at 1280 × 800 that records what leaves the service:
-    requests to other hosts and script errors are test failures."""
+    requests to other hosts and script errors are test failures. Console errors (a refused
+    request among them: Chromium logs every 4xx and 5xx) are kept in ``console_errors`` for
+    tests to assert on (a refused submission is one on purpose)."""
     context = browser.new_context(viewport={"width": 1280, "height": 800})
     context.set_default_timeout(30_000)
     p = context.new_page()
     p.foreign: list[str] = []  # type: ignore[attr-defined]
     p.errors: list[str] = []  # type: ignore[attr-defined]
+    p.console_errors: list[str] = []  # type: ignore[attr-defined]
     p.on("pageerror", lambda exc: p.errors.append(str(exc)))
+    p.on("console", lambda m: p.console_errors.append(f"{m.text} ({m.location.get('url')})")
+         if m.type == "error" else None)  # fmt: skip
     p.on("request", lambda r: None if r.url.startswith(("http://127.0.0.1:", "blob:", "data:"))
          else p.foreign.append(r.url))  # fmt: skip
     try:

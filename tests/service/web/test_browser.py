@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from service.client import Client
-from tests.service.helpers import SLOW_SOLVER, Server, tiny_study
+from tests.service.helpers import FAST_SOLVER, SLOW_SOLVER, Server, tiny_study
 
 # a real server, a real cluster, a real browser; `page` comes first in every signature, so a
 # missing browser skips before a server or cluster is started
@@ -83,6 +83,9 @@ def test_home_lists_the_study_and_its_page_draws_the_charts(page: Any, server: S
     with page.expect_download() as dl:
         page.get_by_role("button", name="Band edges CSV").click()
     assert dl.value.suggested_filename == f"{rec['id']}-bands.csv"
+    # every request of the study page was answered: no 4xx (e.g. an adaptive-only variable
+    # asked of a grid study), no console error
+    assert page.console_errors == []
 
 
 def test_a_bad_study_shows_its_problems_beside_the_text(page: Any, server: Server) -> None:
@@ -94,11 +97,21 @@ def test_a_bad_study_shows_its_problems_beside_the_text(page: Any, server: Serve
     item.wait_for()
     assert re.match(r"grid\.gap \(line 4\): gap must be >= 0, got -1", item.inner_text())
     assert page.get_attribute("#study-text", "aria-invalid") == "true"
-    # A good one opens its page.
+    assert any("422" in e for e in page.console_errors)  # the refused submission
+    page.console_errors.clear()
+    # The example opens its page, settles at every point and draws its map without an error.
     page.get_by_role("button", name="Insert the example").click()
     page.get_by_role("button", name="Submit study").click()
     page.wait_for_url(re.compile(r"#/studies/[0-9a-f]+$"))
     _expect_text(page, "h1", "my-first-study")
+    _expect_text(page, "#study-live", "finished, 100 %", timeout=120_000)
+    chart = page.locator('#map-chart svg[data-chart="map"]')
+    chart.wait_for()
+    assert int(chart.get_attribute("data-points")) == 24  # 12 γ_r × 2 gaps, every one finite
+    for glyph in ("□", "✖"):  # no unsettled or failed point
+        assert page.locator("#map-chart text", has_text=glyph).count() == 0
+    _expect_count(page, "#curve-chart svg path[data-series]", 4)
+    assert page.console_errors == []
 
 
 def test_cancel_then_delete(page: Any, server: Server) -> None:
@@ -183,3 +196,35 @@ def test_an_adaptive_study_page_draws_its_samples_and_located_edges(
     # each line's curve runs through its own samples: one unbroken path (a single move-to)
     d = page.locator("#curve-chart svg path[data-series]").first.get_attribute("d")
     assert d.count("M") == 1
+    assert page.console_errors == []
+
+
+def test_a_physical_study_page_reads_in_prefixed_si_units(page: Any, server: Server) -> None:
+    study = {
+        "name": "web-si",
+        "solver": FAST_SOLVER,
+        "physical": {
+            "length_m": 0.15,
+            "width_m": 0.01,
+            "thickness_m": 0.0025,
+            "density_kg_m3": 1250.0,
+            "youngs_modulus_pa": 4.583e7,
+            "outer_mass_kg": 0.01667,
+            "spring_n_m": 350.0,
+            "damping_ratio": 0.03,
+            "gap_m": 0.001,
+        },  # fmt: skip
+        "grid": {"base_amplitude_m": [0.00025, 0.0005, 0.001], "frequency_hz": [12, 20, 30]},
+    }
+    with Client(server.url) as c:
+        rec = c.wait(c.submit(study)["id"], progress=False, timeout=120, poll=0.2)
+    page.goto(f"{server.url}/#/studies/{rec['id']}")
+    page.locator('#map-chart svg[data-chart="map"]').wait_for()
+    _expect_count(page, "#curve-chart svg path[data-series]", 6)  # Γ and Γ_lin, 3 amplitudes
+    series = page.locator("#curve-chart svg path[data-series]").evaluate_all(
+        "ps => ps.map(p => p.getAttribute('data-series'))"
+    )
+    assert {"U_g = 0.25 mm", "U_g = 0.5 mm", "U_g = 1 mm"} <= set(series)
+    assert page.locator("#map-chart svg text", has_text="U_g (mm)").count() == 1
+    assert not any("base_amplitude_m" in s or "e-4" in s for s in series)
+    assert page.console_errors == []

@@ -3,14 +3,21 @@ browsers, the assets and their types, nothing loaded from elsewhere, open withou
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 from fastapi.testclient import TestClient
 
 from service.api.app import OPEN_ROUTES
 from service.api.web.routes import OPEN_PATHS, STATIC, wants_html
+from service.studies.dataset import open_results
+from service.studies.runner import run_study
+from service.studies.schema import parse_study
+from service.studies.variables import outcome_names
 from tests.service.helpers import API_TOKEN
 
 TOKEN = API_TOKEN
@@ -78,3 +85,22 @@ def test_the_page_paths_are_open_routes() -> None:
 )
 def test_wants_html(accept: str, html: bool) -> None:
     assert wants_html(accept) is html
+
+
+def _example() -> str:
+    """The study text the page's "Insert the example" button inserts (app.js ``EXAMPLE``)."""
+    js = (STATIC / "app.js").read_text("utf-8")
+    body = re.search(r"const EXAMPLE = \[(.*?)\]\.join\(\"\\n\"\)", js, re.S)
+    assert body, "app.js defines EXAMPLE as an array of lines"
+    return "\n".join(json.loads(s) for s in re.findall(r'"(?:[^"\\]|\\.)*"', body.group(1)))
+
+
+@pytest.mark.slow  # the whole example study, serial (a few seconds)
+def test_the_example_study_settles_at_every_point(tmp_path: Path) -> None:
+    study = parse_study(yaml.safe_load(_example()), source="the web page's example")
+    assert study.name == "my-first-study"
+    ds = open_results(run_study(study, tmp_path, serial=True).path)
+    names = outcome_names(ds["outcome"])
+    assert names.size == 24
+    # every point ends in a steady state the results can stand on: none unsettled or failed
+    assert set(np.unique(names)) <= {"linear", "periodic", "irregular"}, np.unique(names)

@@ -14,7 +14,15 @@
   const fmt = C.fmt;
   // Axis and variable names as the paper writes them (service.studies.variables has the rest).
   const SYMBOLS = { gamma_r: "γ_r", gap: "gap g̃", g1: "g1", g2: "g2", theta: "θ", sigma: "σ",
-    gamma_s: "γ_s", xi: "ξ", frequency_hz: "f (Hz)", initial: "initial state", direction: "direction" };
+    gamma_s: "γ_s", xi: "ξ", frequency_hz: "f (Hz)", initial: "initial state", direction: "direction",
+    gap_m: "gap", gap1_m: "gap 1", gap2_m: "gap 2", length_m: "length", width_m: "width", thickness_m: "thickness",
+    density_kg_m3: "density", youngs_modulus_pa: "E", outer_mass_kg: "outer mass", spring_n_m: "spring stiffness",
+    damping_ratio: "damping ratio", base_amplitude_m: "U_g", base_acceleration_m_s2: "base acceleration" };
+  // SI units with a prefix, as the figures write them (service/analysis/plots.py, _PREFIXES):
+  // the largest prefix whose value is at least 0.1, so 0.0005 m reads 0.5 mm.
+  const PREFIXES = { m: [["m", 1], ["mm", 1e-3], ["µm", 1e-6], ["nm", 1e-9]],
+    Pa: [["GPa", 1e9], ["MPa", 1e6], ["kPa", 1e3], ["Pa", 1]], kg: [["kg", 1], ["g", 1e-3], ["mg", 1e-6]],
+    "N m-1": [["kN m-1", 1e3], ["N m-1", 1]] };
   const MAP_VARIABLES = { transmittance_db: "Γ (dB)", transmittance_linear_db: "Γ_lin, no stops (dB)",
     impact_effect_db: "Γ − Γ_lin, impact effect (dB)" };
   const CURVE_VARIABLES = { transmittance_db: "Γ (dB), Γ_lin dashed", impact_effect_db: "Γ − Γ_lin (dB)",
@@ -26,10 +34,11 @@
   const MASS_VARIABLES = { theta_eff: "effective mass θ_eff (first harmonic)",
     theta_eff_slope: "phase-portrait ratio θ_ps (all harmonics; θ_eff only without impacts)" };
   const TRANSIENT = 5; // charts.js: an irregular point flagged may_be_transient
+  // The example study: the default solver, so that every point settles (linear, periodic or
+  // irregular; tests/service/web/test_page.py runs it), in a few seconds.
   const EXAMPLE = [
     "name: my-first-study",
     "description: Γ over frequency at two gaps",
-    "solver: {steps_per_period: 256, max_periods: 60}",
     "grid:",
     "  gamma_r: {start: 0.5, stop: 3.0, num: 12}",
     "  gap: [0.1, 0.5]",
@@ -63,6 +72,16 @@
   }
 
   const sym = (name) => SYMBOLS[name] || name;
+
+  /** [factor, prefixed units] of an axis in SI `units` over `values` ([1, units] without a prefix). */
+  function prefixed(units, values) {
+    const choices = PREFIXES[units];
+    if (!choices) return [1, units || ""];
+    const big = Math.max(0, ...values.filter((v) => typeof v === "number" && Number.isFinite(v)).map(Math.abs));
+    for (const [text, factor] of choices) if (big / factor >= 0.1) return [factor, text];
+    const [text, factor] = choices[choices.length - 1];
+    return [factor, text];
+  }
   const announce = (msg) => { document.getElementById("announce").textContent = msg; };
 
   function badge(status) {
@@ -489,6 +508,14 @@
     }
     if (!alive(gen)) return null;
     const names = Object.keys(axes);
+    // SI axes are shown in prefixed units (gap in mm): their labels, values, legends and menus.
+    const units = { [base.x]: base.axes.x.units };
+    if (base.y) units[base.y] = base.axes.y.units;
+    for (const k of others) units[k] = base.slice[k].units;
+    const scale = Object.fromEntries(names.map((n) => [n, prefixed(units[n], axes[n])]));
+    const si = (n) => Boolean(PREFIXES[units[n]]);
+    const shown = (n, v) => (si(n) && typeof v === "number" ? v / scale[n][0] : v);
+    const valueText = (n, v) => (si(n) && typeof v === "number" ? `${fmt(v / scale[n][0])} ${scale[n][1]}` : fmt(v));
     const rec = current;
     const state = { x: base.x, y: base.y, fixed: Object.assign({}, first), mapVar: "transmittance_db",
       curveVar: "transmittance_db", massVar: "theta_eff" };
@@ -552,7 +579,7 @@
       for (const n of names) {
         if (n === state.x || n === state.y) continue;
         if (state.fixed[n] === undefined) state.fixed[n] = axes[n][0];
-        const s = h("select", { id: `fixed-${n}` }, axes[n].map((v) => h("option", { value: String(v), text: fmt(v), selected: String(v) === String(state.fixed[n]) })));
+        const s = h("select", { id: `fixed-${n}` }, axes[n].map((v) => h("option", { value: String(v), text: valueText(n, v), selected: String(v) === String(state.fixed[n]) })));
         s.addEventListener("change", () => { state.fixed[n] = s.value; redraw(); });
         fields.push(h("div", { class: "field" }, h("label", { for: `fixed-${n}`, text: `${sym(n)} fixed at` }), s));
       }
@@ -564,15 +591,17 @@
       for (const [k, v] of Object.entries(state.fixed)) if (k !== state.x && k !== state.y && v !== undefined) p[k] = v;
       return p;
     };
-    const label = (n) => sym(n);
+    const label = (n) => (si(n) ? `${sym(n)} (${scale[n][1]})` : sym(n));
 
     /** How each point of the slice ended, -1 where it is not computed yet (a partial
      * dataset's `pending`; its `outcome` there is a placeholder, not a failure), TRANSIENT
      * where an irregular point may be transient. */
     async function outcomeGrid() {
+      // only an adaptive study has `sampled` (asking another for it is an error, 422)
+      const adaptive = Boolean((rec().definition || {}).adaptive);
       const [o, pending, sampled, transient] = await Promise.all([slice("outcome").catch(() => null),
         rec().status === "finished" ? null : slice("pending").catch(() => null),
-        slice("sampled").catch(() => null), slice("may_be_transient").catch(() => null)]);
+        adaptive ? slice("sampled").catch(() => null) : null, slice("may_be_transient").catch(() => null)]);
       if (!o) return null;
       let grid = grid2d(o, state.x, state.y);
       if (transient) {
@@ -603,12 +632,14 @@
       const att = m.dims.length === 1 ? [m.attenuating] : m.attenuating;
       C.heatmap(mapBox, {
         kind: "map", title: `${MAP_VARIABLES[name]} over ${label(m.x)}${y ? " × " + label(y) : ""}`,
-        x: { label: label(m.x), values: m.axes.x.values }, y: y ? { label: label(y), values: m.axes.y.values } : null,
+        x: { label: label(m.x), values: m.axes.x.values.map((v) => shown(m.x, v)) },
+        y: y ? { label: label(y), values: m.axes.y.values.map((v) => shown(y, v)) } : null,
         z, attenuating: att, threshold: m.threshold.value, zLabel: MAP_VARIABLES[name].replace(/, .*\(/, " ("),
-        edges: m.edges, outcome, reason: reason ? withLasted(grid2d(reason, m.x, y), lasted, m.x, y) : null,
+        edges: (m.edges || []).map((e) => Object.assign({}, e, { y: y ? shown(y, e.y) : e.y,
+          bands: e.bands.map((b) => b.map((v) => shown(m.x, v))) })), outcome, reason: reason ? withLasted(grid2d(reason, m.x, y), lasted, m.x, y) : null,
       });
       edgesList.replaceChildren(...(m.edges || []).map((e) => h("li", {
-        text: `${y ? `${label(y)} = ${fmt(e.y)}: ` : ""}${e.bands.length ? e.bands.map((b) => `${fmt(b[0])} – ${fmt(b[1])}`).join(", ") : "no band"}`,
+        text: `${y ? `${sym(y)} = ${valueText(y, e.y)}: ` : ""}${e.bands.length ? e.bands.map((b) => `${valueText(m.x, b[0])} – ${valueText(m.x, b[1])}`).join(", ") : "no band"}`,
       })), h("li", { class: "muted", text: m.threshold.meaning }));
     }
 
@@ -628,7 +659,7 @@
       const z = grid2d(s, state.x, state.y);
       const ys = state.y ? axes[state.y] : [null];
       return z.map((row, j) => Object.assign({
-        label: state.y ? `${label(state.y)} = ${fmt(ys[j])}${extra ? " " + extra : ""}` : (extra || s.variable),
+        label: state.y ? `${sym(state.y)} = ${valueText(state.y, ys[j])}${extra ? " " + extra : ""}` : (extra || s.variable),
         values: row, outcome: o ? o[j] : null,
         // an adaptive line's curve runs through its own samples, over the other lines' values
         bridge: o ? o[j].map((v) => v === -2) : null,
@@ -647,13 +678,13 @@
         seriesOf(lin, null, "(Γ_lin)").forEach((l, j) => { l.color = series[j].color = C_COLOR(j); series.push(l); });
       }
       C.lineChart(curveBox, { kind: "curves", title: `${CURVE_VARIABLES[state.curveVar]} over ${label(state.x)}`,
-        x: { label: label(state.x), values: axes[state.x] }, series, yLabel: Y_LABELS[state.curveVar],
+        x: { label: label(state.x), values: axes[state.x].map((v) => shown(state.x, v)) }, series, yLabel: Y_LABELS[state.curveVar],
         refLine: state.curveVar.endsWith("_db") ? (state.curveVar === "impact_effect_db" ? -1 : 0) : undefined });
       if (mass instanceof Error) {
         massBox.replaceChildren(h("p", { class: "muted", text: `No effective mass: ${mass.message}` }));
       } else {
         C.lineChart(massBox, { kind: "mass", title: `${MASS_VARIABLES[state.massVar]} over ${label(state.x)}`,
-          x: { label: label(state.x), values: axes[state.x] }, series: seriesOf(mass, outcome), yLabel: Y_LABELS[state.massVar], refLine: 0 });
+          x: { label: label(state.x), values: axes[state.x].map((v) => shown(state.x, v)) }, series: seriesOf(mass, outcome), yLabel: Y_LABELS[state.massVar], refLine: 0 });
       }
     }
     const PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22"];
