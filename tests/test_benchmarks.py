@@ -41,7 +41,10 @@ def test_work_precision_quick_runs(tmp_path: Path) -> None:
 
 
 def _load(name: str):
+    """A speed benchmark (``benchmarks/``) or an accuracy audit (``audits/``) by its name."""
     path = ROOT / "benchmarks" / f"{name}.py"
+    if not path.exists():
+        path = ROOT / "audits" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(f"{name}_smoke", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -140,7 +143,7 @@ def test_step_check_estimates_exponentials_error_and_finds_moved_bifurcations(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     mod = _load("step_check")
-    points, settings = _load("irregular_budget").study_points("nightly/full-gaps")
+    points, settings = _load("common").study_points("nightly/full-gaps")
     # θ 0.2, gap 0.1, γ_r 5: period 3 at both steps, 0.0025 dB from event's Γ; θ 0.5, gap
     # 0.3, γ_r 1.7: period 2 at the default steps, period 1 at twice them (and in event)
     want = {("theta 0.2, g1 0.1, g2 0.1", 5.0), ("theta 0.5, g1 0.3, g2 0.3", 1.7)}
@@ -301,7 +304,7 @@ def test_modes_cost_runs_on_point_engines_timer(tmp_path: Path) -> None:
 
 
 def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
-    mod = _load("irregular_budget")
+    mod = _load("common")
     pts, settings = mod.study_points("quick")
     assert len(pts) == 360  # 60 γ_r × 3 gaps × 2 θ
     # the case names the coordinates that vary besides γ_r (σ, γ_s and ξ do not)
@@ -320,7 +323,7 @@ def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
         mod.study_points("nightly/nope")
     # random cells instead: not with a study
     with pytest.raises(SystemExit) as exc:
-        mod.main(["--random", "5", "--study", "quick"])
+        _load("irregular_budget").main(["--random", "5", "--study", "quick"])
     assert exc.value.code == 2
 
 
@@ -345,7 +348,7 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
             assert r["divisor_repeat"] == ""
     # an orbit reported with twice its period is caught: its integrated states do not repeat
     # after 2 periods but after 1 (a run with that history reports period 1: not reproduced)
-    points = _load("irregular_budget")
+    points = _load("common")
     p = points.spectra_points(6)[0][2][2]  # A γ_r 2.58, period 1
     settings = mod.SolverSettings()
     r = mod.simulate_point(p, settings)
@@ -377,7 +380,7 @@ def test_every_orbit_of_a_figure_5_line_has_the_tight_references_period() -> Non
     # solver version 16's tight reference (plain iteration to 1e-12) reported a multiple of the
     # period at 8 of them (γ_r 1, 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
     mod = _load("orbit_audit")
-    points, settings = _load("irregular_budget").study_points("paper-fig5-gaps")
+    points, settings = _load("common").study_points("paper-fig5-gaps")
     line = [(c, g, p) for c, g, p in points if p.theta == 0.5 and p.g1 == 0.1]
     assert len(line) == 291
     reference = dataclasses.replace(settings, extrapolate=False, periodicity_tol=1e-12,

@@ -1,5 +1,5 @@
 """Extreme parameters for every method: finite or failed with a reason, and right where a
-closed form is known (docs/accuracy.md; the full sweep is benchmarks/stress.py)."""
+closed form is known (docs/accuracy.md; the full sweep is audits/stress.py)."""
 
 import math
 
