@@ -14,7 +14,7 @@ Points: by default the 600 of the killed-worker topology test (``tests/test_topo
 θ 0.3, σ 0.05, γ_s 1, ξ 0.05, gaps 0.1, 0.3, 0.5, 0.7, γ_r 0.5 … 3 in 150 steps; solver
 ``max_periods`` 100, ``periodicity_tol`` 1e-13, ``window`` 5), where solver version 21
 reported other work counters at 24; ``--study`` a shipped grid study's (its settings),
-``--random N`` random cells (``irregular_budget.random_points``). ``--max`` N runs the first N
+``--random N`` random cells (``common.random_points``). ``--max`` N runs the first N
 (0: all).
 
 Writes ``batch_cuts[_<study>].md`` and ``.csv`` (the points that differ, each with the fields

@@ -3,7 +3,7 @@
     python audits/irregular_error_bars.py [--cells 100] [--seed 1] [--undamped 0.4]
                                               [--factor 20] [--out audits/results]
 
-Draws random cells over the wide ranges of ``irregular_budget.random_points`` (both couplings),
+Draws random cells over the wide ranges of ``common.random_points`` (both couplings),
 a seeded share ``--undamped`` of them made undamped (ξ = 0, so the beam's ξ_b = 0 too), runs
 each with the default settings until ``--cells`` of them end ``irregular``, and runs each of
 those again from the same start with ``max_periods`` ``--factor`` times the periods its claim

@@ -5,7 +5,7 @@
     python audits/orbit_audit.py --random 300 --seed 4
 
 Every point of a shipped grid study (with ``--study``; ``nightly/NAME`` for one of the nightly
-suite), of N random cells over wide ranges (``--random N``, ``irregular_budget.random_points``)
+suite), of N random cells over wide ranges (``--random N``, ``common.random_points``)
 or else of the three spectra of ``point_engine.py`` that its own settings (with ``--plain``:
 extrapolation off, plain iteration) report ``periodic`` is checked twice:
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import importlib.util
+import json
 import math
 import os
 import sys
@@ -548,3 +549,55 @@ def test_irregular_error_bars_draws_a_seeded_stream_and_tabulates_by_class() -> 
     assert "| all | 3 | 1 of 3 (33 %) | 2 of 3 (67 %) | 0 |" in lines
     assert "| paper, undamped | 1 | 0 of 1 (0 %) | 0 of 1 (0 %) | 0 |" in lines
     assert "| damped, ξ 0.001–0.003 | 2 | 1 of 2 (50 %) | 2 of 2 (100 %) | 0 |" in lines
+
+
+def _asv_conf() -> dict:
+    """``asv.conf.json`` (JSON with ``//`` comment lines, as asv reads it)."""
+    text = (ROOT / "asv.conf.json").read_text()
+    return json.loads("\n".join(s for s in text.splitlines() if not s.lstrip().startswith("//")))
+
+
+def test_asv_runs_the_suite_with_the_pinned_cpu_target_and_keeps_results_out_of_git() -> None:
+    from worker import cpu
+
+    conf = _asv_conf()
+    assert conf["benchmark_dir"] == "benchmarks/suite"
+    for key in ("env_dir", "results_dir", "html_dir"):
+        assert conf[key].startswith(".asv/"), key
+    assert "/.asv/" in (ROOT / ".gitignore").read_text().splitlines()
+    pinned = {cpu.BLAS_ENV: cpu.BLAS_CORE, cpu.NUMBA_ENV: cpu.NUMBA_CPU, cpu.FEATURES_ENV: "",
+              cpu.NUMPY_ENV: cpu.NUMPY_OFF, **dict.fromkeys(cpu.THREAD_ENVS, "1")}  # fmt: skip
+    assert conf["matrix"]["env_nobuild"] == pinned
+
+
+def _asv_benchmarks() -> list[tuple[str, type, str]]:
+    """(class name, class, method) of every benchmark asv finds in the suite's modules."""
+    import inspect
+
+    from benchmarks.suite import chunks, points
+
+    found = []
+    for module in (points, chunks):
+        for name, cls in inspect.getmembers(module, inspect.isclass):
+            if cls.__module__ == module.__name__:
+                found += [(name, cls, m) for m in dir(cls) if m.startswith(("time_", "track_"))]
+    return found
+
+
+def test_the_asv_suite_imports_and_names_its_benchmarks() -> None:
+    assert sorted(f"{name}.{meth}" for name, _, meth in _asv_benchmarks()) == [
+        "DefaultSolver.time_points", "DefaultSolver.track_periods", "Figure5Chunk.time_chunk",
+        "Figure5Chunk.track_periods", "PaperScheme.time_points",
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_every_benchmark_of_the_asv_suite_runs_once() -> None:
+    for name, cls, meth in _asv_benchmarks():
+        params = [p[0] for p in getattr(cls, "params", ())]  # the first of each parameter
+        bench = cls()
+        bench.setup(*params)
+        value = getattr(bench, meth)(*params)
+        if meth.startswith("track_"):  # work counters: whole, positive, the same every run
+            assert isinstance(value, int) and value > 0, (name, meth)
+            assert getattr(bench, meth)(*params) == value, (name, meth)
