@@ -12,8 +12,8 @@ Every field of the two results but ``wall_s`` is compared, to the bit.
 
 Points: by default the 600 of the killed-worker topology test (``tests/test_topology.py``:
 θ 0.3, σ 0.05, γ_s 1, ξ 0.05, gaps 0.1, 0.3, 0.5, 0.7, γ_r 0.5 … 3 in 150 steps; solver
-``max_periods`` 100, ``periodicity_tol`` 1e-13, ``window`` 5), where solver version 21
-reported other work counters at 24; ``--study`` a shipped grid study's (its settings),
+``max_periods`` 100, ``periodicity_tol`` 1e-13, ``window`` 5), where periodic points reach
+pending orbits near batch ends; ``--study`` a shipped grid study's (its settings),
 ``--random N`` random cells (``common.random_points``). ``--max`` N runs the first N
 (0: all).
 

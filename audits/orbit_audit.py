@@ -15,9 +15,8 @@ extrapolation off, plain iteration) report ``periodic`` is checked twice:
   its period ends from a recorded history) must not repeat after a proper divisor q of its
   period p to 1000 times its ``periodicity_tol`` of the state's size (1e-6 by default): such
   an orbit is a period-q orbit reported with a multiple of its period, while the states of a
-  period-p orbit converged to ``periodicity_tol`` stay farther apart (solver version 17 fixed
-  such claims of plain iteration, docs/solvers.md, "A repeat that is a shorter period still
-  being approached").
+  period-p orbit converged to ``periodicity_tol`` stay farther apart (docs/solvers.md, "How a
+  point ends": a shorter period still being approached).
 
 ``--max`` N checks the first N periodic points (0: all). Writes ``orbit_audit[_<study>].md``
 and ``.csv``.

@@ -377,9 +377,9 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
 
 @pytest.mark.slow  # a line of Figure 5 (291 points) and a tight reference for each orbit
 def test_every_orbit_of_a_figure_5_line_has_the_tight_references_period() -> None:
-    # θ 0.5, gap 0.1: 109 orbits of period 1 to 8, near period doublings and roots of unity;
-    # solver version 16's tight reference (plain iteration to 1e-12) reported a multiple of the
-    # period at 8 of them (γ_r 1, 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
+    # θ 0.5, gap 0.1: 109 orbits of period 1 to 8, near period doublings and roots of unity,
+    # where a periodicity test fooled by a slow mode reports a multiple of the period (γ_r 1,
+    # 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
     mod = _load("orbit_audit")
     points, settings = _load("common").study_points("paper-fig5-gaps")
     line = [(c, g, p) for c, g, p in points if p.theta == 0.5 and p.g1 == 0.1]
@@ -504,7 +504,7 @@ def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch)
     assert pace == engine.BATCH_S  # restored
     assert "**0 of 12 points differ**" in (tmp_path / "batch_cuts.md").read_text()
 
-    class Result:  # a point whose periods depend on the batches, as in solver version 21
+    class Result:  # a point whose periods depend on the batches (what the audit looks for)
         def as_dict(self) -> dict:
             return {"outcome": "periodic", "periods": 4 if engine.BATCH_S else 3}
 
