@@ -72,30 +72,14 @@ import worker  # noqa: E402, F401  # first: pins the CPU target (worker/cpu.py)
 # isort: split
 import numpy as np  # noqa: E402
 
+from benchmarks.suite.cases import (  # noqa: E402
+    SPECTRA,
+    cell,
+    paper_settings,
+)
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import SolverSettings, simulate_point, warm_up  # noqa: E402
 from worker.solvers.base import KernelRun  # noqa: E402
-
-SPECTRA = {
-    "A": dict(coupling="paper", theta=0.3, xi=0.05, g1=0.1, g2=0.1),
-    "B": dict(coupling="paper", theta=1.0, xi=0.02, g1=0.5, g2=0.5),
-    "C": dict(coupling="full", theta=0.3, xi=0.05, g1=0.3, g2=0.3),
-}
-PAPER_DT = 1e-3
-PAPER_PERIODS = 150
-PAPER_WINDOW = 20
-
-
-def cell(case: str, gamma_r: float) -> CellParams:
-    return CellParams(sigma=0.05, gamma_s=1.0, gamma_r=float(gamma_r), modes=5, **SPECTRA[case])
-
-
-def paper_settings(gamma_r: float) -> SolverSettings:
-    spp = round(2.0 * math.pi / gamma_r / PAPER_DT)
-    return SolverSettings(
-        method="euler", lcp="lemke", steps_per_period=spp, max_periods=PAPER_PERIODS,
-        window=PAPER_WINDOW, early_stop=False,
-    )  # fmt: skip
 
 
 def variant(items: list[str]) -> tuple[SolverSettings, dict[str, Any]]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import importlib.util
+import json
 import math
 import os
 import sys
@@ -41,7 +42,10 @@ def test_work_precision_quick_runs(tmp_path: Path) -> None:
 
 
 def _load(name: str):
+    """A speed benchmark (``benchmarks/``) or an accuracy audit (``audits/``) by its name."""
     path = ROOT / "benchmarks" / f"{name}.py"
+    if not path.exists():
+        path = ROOT / "audits" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(f"{name}_smoke", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -140,7 +144,7 @@ def test_step_check_estimates_exponentials_error_and_finds_moved_bifurcations(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     mod = _load("step_check")
-    points, settings = _load("irregular_budget").study_points("nightly/full-gaps")
+    points, settings = _load("common").study_points("nightly/full-gaps")
     # θ 0.2, gap 0.1, γ_r 5: period 3 at both steps, 0.0025 dB from event's Γ; θ 0.5, gap
     # 0.3, γ_r 1.7: period 2 at the default steps, period 1 at twice them (and in event)
     want = {("theta 0.2, g1 0.1, g2 0.1", 5.0), ("theta 0.5, g1 0.3, g2 0.3", 1.7)}
@@ -301,7 +305,7 @@ def test_modes_cost_runs_on_point_engines_timer(tmp_path: Path) -> None:
 
 
 def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
-    mod = _load("irregular_budget")
+    mod = _load("common")
     pts, settings = mod.study_points("quick")
     assert len(pts) == 360  # 60 γ_r × 3 gaps × 2 θ
     # the case names the coordinates that vary besides γ_r (σ, γ_s and ξ do not)
@@ -320,7 +324,7 @@ def test_irregular_budget_takes_a_shipped_studys_points_and_settings() -> None:
         mod.study_points("nightly/nope")
     # random cells instead: not with a study
     with pytest.raises(SystemExit) as exc:
-        mod.main(["--random", "5", "--study", "quick"])
+        _load("irregular_budget").main(["--random", "5", "--study", "quick"])
     assert exc.value.code == 2
 
 
@@ -345,7 +349,7 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
             assert r["divisor_repeat"] == ""
     # an orbit reported with twice its period is caught: its integrated states do not repeat
     # after 2 periods but after 1 (a run with that history reports period 1: not reproduced)
-    points = _load("irregular_budget")
+    points = _load("common")
     p = points.spectra_points(6)[0][2][2]  # A γ_r 2.58, period 1
     settings = mod.SolverSettings()
     r = mod.simulate_point(p, settings)
@@ -373,11 +377,11 @@ def test_orbit_audit_checks_each_orbit_against_plain_iteration_and_its_own_perio
 
 @pytest.mark.slow  # a line of Figure 5 (291 points) and a tight reference for each orbit
 def test_every_orbit_of_a_figure_5_line_has_the_tight_references_period() -> None:
-    # θ 0.5, gap 0.1: 109 orbits of period 1 to 8, near period doublings and roots of unity;
-    # solver version 16's tight reference (plain iteration to 1e-12) reported a multiple of the
-    # period at 8 of them (γ_r 1, 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
+    # θ 0.5, gap 0.1: 109 orbits of period 1 to 8, near period doublings and roots of unity,
+    # where a periodicity test fooled by a slow mode reports a multiple of the period (γ_r 1,
+    # 1.74, 1.76, 3.42, 3.44, 3.52 for period 1; 3.34, 3.54 for 2)
     mod = _load("orbit_audit")
-    points, settings = _load("irregular_budget").study_points("paper-fig5-gaps")
+    points, settings = _load("common").study_points("paper-fig5-gaps")
     line = [(c, g, p) for c, g, p in points if p.theta == 0.5 and p.g1 == 0.1]
     assert len(line) == 291
     reference = dataclasses.replace(settings, extrapolate=False, periodicity_tol=1e-12,
@@ -500,7 +504,7 @@ def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch)
     assert pace == engine.BATCH_S  # restored
     assert "**0 of 12 points differ**" in (tmp_path / "batch_cuts.md").read_text()
 
-    class Result:  # a point whose periods depend on the batches, as in solver version 21
+    class Result:  # a point whose periods depend on the batches (what the audit looks for)
         def as_dict(self) -> dict:
             return {"outcome": "periodic", "periods": 4 if engine.BATCH_S else 3}
 
@@ -545,3 +549,55 @@ def test_irregular_error_bars_draws_a_seeded_stream_and_tabulates_by_class() -> 
     assert "| all | 3 | 1 of 3 (33 %) | 2 of 3 (67 %) | 0 |" in lines
     assert "| paper, undamped | 1 | 0 of 1 (0 %) | 0 of 1 (0 %) | 0 |" in lines
     assert "| damped, ξ 0.001–0.003 | 2 | 1 of 2 (50 %) | 2 of 2 (100 %) | 0 |" in lines
+
+
+def _asv_conf() -> dict:
+    """``asv.conf.json`` (JSON with ``//`` comment lines, as asv reads it)."""
+    text = (ROOT / "asv.conf.json").read_text()
+    return json.loads("\n".join(s for s in text.splitlines() if not s.lstrip().startswith("//")))
+
+
+def test_asv_runs_the_suite_with_the_pinned_cpu_target_and_keeps_results_out_of_git() -> None:
+    from worker import cpu
+
+    conf = _asv_conf()
+    assert conf["benchmark_dir"] == "benchmarks/suite"
+    for key in ("env_dir", "results_dir", "html_dir"):
+        assert conf[key].startswith(".asv/"), key
+    assert "/.asv/" in (ROOT / ".gitignore").read_text().splitlines()
+    pinned = {cpu.BLAS_ENV: cpu.BLAS_CORE, cpu.NUMBA_ENV: cpu.NUMBA_CPU, cpu.FEATURES_ENV: "",
+              cpu.NUMPY_ENV: cpu.NUMPY_OFF, **dict.fromkeys(cpu.THREAD_ENVS, "1")}  # fmt: skip
+    assert conf["matrix"]["env_nobuild"] == pinned
+
+
+def _asv_benchmarks() -> list[tuple[str, type, str]]:
+    """(class name, class, method) of every benchmark asv finds in the suite's modules."""
+    import inspect
+
+    from benchmarks.suite import chunks, points
+
+    found = []
+    for module in (points, chunks):
+        for name, cls in inspect.getmembers(module, inspect.isclass):
+            if cls.__module__ == module.__name__:
+                found += [(name, cls, m) for m in dir(cls) if m.startswith(("time_", "track_"))]
+    return found
+
+
+def test_the_asv_suite_imports_and_names_its_benchmarks() -> None:
+    assert sorted(f"{name}.{meth}" for name, _, meth in _asv_benchmarks()) == [
+        "DefaultSolver.time_points", "DefaultSolver.track_periods", "Figure5Chunk.time_chunk",
+        "Figure5Chunk.track_periods", "PaperScheme.time_points",
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_every_benchmark_of_the_asv_suite_runs_once() -> None:
+    for name, cls, meth in _asv_benchmarks():
+        params = [p[0] for p in getattr(cls, "params", ())]  # the first of each parameter
+        bench = cls()
+        bench.setup(*params)
+        value = getattr(bench, meth)(*params)
+        if meth.startswith("track_"):  # work counters: whole, positive, the same every run
+            assert isinstance(value, int) and value > 0, (name, meth)
+            assert getattr(bench, meth)(*params) == value, (name, meth)

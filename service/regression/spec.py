@@ -122,8 +122,8 @@ DEFAULT_TOLERANCES: dict[str, Tolerance] = {
     "transmittance_db": Tolerance(abs=1e-3),
     "response_period": Tolerance(exact=True),
     # the attraction rate a point reports: computed to round-off (event's exact monodromy
-    # matrix) or to the finite differences' truncation; a multiplier that appears or goes is a
-    # change too (solver version 11 moved Figure 5's by up to 9.5e-3, median 4e-8)
+    # matrix) or to the finite differences' truncation (up to ~1e-2); a multiplier that
+    # appears or goes is a change too
     "floquet_multiplier": Tolerance(abs=1e-6),
 }
 DEFAULT_IRREGULAR: dict[str, IrregularCheck] = {

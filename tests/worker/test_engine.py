@@ -170,13 +170,13 @@ def test_the_approach_is_measured_whatever_the_phase_of_a_turning_deviation():
     # the samples circle on carries none of them), along its long axis
     wide = np.array([1e-3, 0.0, 1e-4, 0.0])
     # samples circling at a constant distance (another orbit around this one), within 6.8 % of
-    # the map's prediction at every sample: solver version 18 took the max-norm's fourfold fall
-    # over the turn for the approach and passed them
+    # the map's prediction at every sample: the max-norm's fourfold fall over the turn is no
+    # approach, and they must not pass
     circling = np.array([xstar + np.linalg.matrix_power(N, j) @ wide for j in range(8)])
     assert engine._follows(M, circling, xstar, chained=False)
     assert not engine._follows(M, circling, xstar)
     # the map's own approach passes from either phase: from the short axis the max-norm grows
-    # over the turn, and version 18 saw no approach at all and refused it
+    # over the turn, and a max-norm comparison would see no approach at all
     short = np.linalg.matrix_power(N, 3) @ wide
     assert np.max(np.abs(np.linalg.matrix_power(M, 7) @ short)) > np.max(np.abs(short))
     for d0 in (wide, short):
@@ -205,10 +205,10 @@ def test_an_orbit_whose_neighbourhood_has_grazing_impacts_is_not_reported():
     # A random cell (seed 6 of the orbit audit's random cells): a stable period-1 orbit of 7
     # impacts a period (multiplier 0.9967, turning a seventh of a turn a period) is circled by
     # the period-7 orbit the trajectory settles on, an 8th, grazing impact every few periods.
-    # Between two of them 8 returns fitted the period-1 orbit's linearized map to 0.3 %, and
-    # solver version 18 reported the period-1 orbit at 993 periods, 7e-4 dB off. Returns as
-    # close with other impacts show the map is not that orbit's there: it waits, and the
-    # budget runs out before the trajectory reaches it
+    # Between two of them 8 returns fit the period-1 orbit's linearized map to 0.3 % (taken
+    # alone, that fit reports the orbit at 993 periods, 7e-4 dB off). Returns as close with
+    # other impacts show the map is not that orbit's there: it waits, and the budget runs out
+    # before the trajectory reaches it
     p = CellParams(theta=9.150340069645562, sigma=0.0709492806992148,
                    gamma_s=2.4975843832193063, xi=0.025760100182518158,
                    g1=0.007581781867243614, g2=0.02010558944956822,
@@ -221,9 +221,9 @@ def test_an_orbit_whose_neighbourhood_has_grazing_impacts_is_not_reported():
 def test_a_slow_orbit_that_the_trajectory_only_passes_is_not_reported():
     # The nightly paper-params study's cell at θ 0.5, σ 0.03, γ_s 0.8, ξ 0.08, γ_r 1 and its
     # settings. A period-1 orbit of multiplier -0.9995 sits inside the period-2 orbit
-    # (multiplier 0.962) the trajectory settles on. Up to solver version 15 the samples' fit
-    # to the period-1 orbit's map (13 % chained, 2 % a step) reported it at 106 periods:
-    # 1.8e-4 dB off, the wrong period (with periodicity_tol 1e-10 it found the period-2 orbit)
+    # (multiplier 0.962) the trajectory settles on. The samples fit the period-1 orbit's map
+    # (13 % chained, 2 % a step) without showing its approach: reporting it would be 1.8e-4 dB
+    # off, with the wrong period (with periodicity_tol 1e-10 the period-2 orbit is found)
     p = CellParams(coupling="paper", modes=3, xi_b=0.04, g1=0.2, g2=0.2, theta=0.5,
                    sigma=0.03, gamma_s=0.8, xi=0.08, gamma_r=1.0)  # fmt: skip
     s = dict(method="exponential", steps_per_period=1024, coarse_steps=32, window=10)
@@ -487,26 +487,24 @@ def test_measuring_a_run_changes_no_state(method):
 
 
 def test_a_slowly_contracting_orbit_is_found_not_claimed_irregular():
-    # Figure 5 at θ 0.5, gap 0.1, γ_r 3.42: a period-1 orbit with multiplier 0.983. Up to solver
-    # version 13 the extrapolate-and-confirm cycles stopped converging, and the trajectory,
-    # still approaching it, was claimed irregular at 344 periods (-20.94 ± 0.07 dB); plain
-    # iteration reaches it after 989 periods (with a longer budget: in the default 1000 it is
-    # claimed irregular too, its contraction too slow for the irregular claim's veto)
+    # Figure 5 at θ 0.5, gap 0.1, γ_r 3.42: a period-1 orbit with multiplier 0.983, where
+    # extrapolate-and-confirm cycles stop converging (the trajectory, still approaching it,
+    # looks irregular at ~340 periods); Newton's steps find it. Plain iteration reaches it
+    # after 989 periods (given a longer budget than the default 1000)
     p = cell(theta=0.5, gamma_r=3.42)
     r = simulate_point(p)
     plain = simulate_point(p, SolverSettings(extrapolate=False, max_periods=3000))
     assert r.outcome == plain.outcome == "periodic" and r.response_period == 1
     assert r.transmittance_db == pytest.approx(plain.transmittance_db, abs=1e-7)
     assert r.floquet_multiplier == pytest.approx(0.983, abs=1e-3)
-    # since solver version 16 found once its returns show the approach its map predicts: 267
-    # periods (225 before, when a fit of their positions sufficed)
+    # found once its returns show the approach its map predicts (~270 periods)
     assert r.periods < plain.periods / 3
 
 
 def test_a_stable_orbit_beside_chaos_is_not_reported():
     # Figure 5 at θ 0.5, gap 1, γ_r 1.04: chaos passes within 1e-3 of a stable period-1 orbit
-    # (multiplier 0.773) and never settles on it. Up to solver version 14 that orbit was
-    # reported at 53 periods (8.8827 dB); plain iteration stays irregular for 5,000 periods
+    # (multiplier 0.773) and never settles on it (extrapolation confirms that orbit at 53
+    # periods, 8.8827 dB); plain iteration stays irregular for 5,000 periods
     p = cell(theta=0.5, gamma_r=1.04, g1=1.0, g2=1.0)
     r = simulate_point(p)
     plain = simulate_point(p, SolverSettings(extrapolate=False, max_periods=5000))
@@ -533,15 +531,15 @@ def test_an_orbit_whose_map_its_newest_returns_follow_vetoes_the_irregular_claim
     [
         # Figure 5 at θ 0.5, gap 0.7, γ_r 0.5: the trajectory's samples repeat by themselves
         # (period 9) while it is still 6.7e-9 of the state from the orbit, which its periodicity
-        # test cannot see; one Newton step on the exact matrix puts the start within 1.7e-14.
-        # Up to solver version 13 Γ was 9.3e-11 dB off
+        # test cannot see (Γ measured there is 9.3e-11 dB off); one Newton step on the exact
+        # matrix puts the start within 1.7e-14
         pytest.param(dict(theta=0.5, gamma_r=0.5, g1=0.7, g2=0.7), 9, 1e-11,
                      id="reached-by-itself-newton-polished"),
         # Figure 5 at θ 0.3, gap 0.3, γ_r 1.54: a stable period-1 orbit (multiplier 0.979)
-        # inside the period-3 orbit the trajectory settles on. Up to solver version 14 the
-        # period-2 candidate's sequence extrapolated to the period-1 orbit, which was confirmed,
-        # found attracting and reported at 40 periods: 0.021 dB off, and the wrong period. Its
-        # samples do not follow its linearized map (residuals ~0.57 of their distance to it)
+        # inside the period-3 orbit the trajectory settles on. The period-2 candidate's
+        # sequence extrapolates to the period-1 orbit, which is confirmed and attracting (0.021
+        # dB off, the wrong period), but the samples do not follow its linearized map
+        # (residuals ~0.57 of their distance to it)
         pytest.param(dict(theta=0.3, gamma_r=1.54, g1=0.3, g2=0.3), 3, 1e-9,
                      id="stable-orbit-only-circled-not-reported"),
     ],
@@ -569,8 +567,8 @@ def test_a_subharmonic_orbit_is_reported_with_its_smallest_period(gamma_r, perio
 
 
 def test_an_orbit_longer_than_eight_periods_is_periodic_not_irregular():
-    # Figure 5's cell at θ 0.1, gap 0.1: a period-9 orbit (solver version 6 looked for periods
-    # up to 8, ran into the window statistics and called it irregular, standard error 7e-8 dB)
+    # Figure 5's cell at θ 0.1, gap 0.1: a period-9 orbit, whose window statistics look
+    # irregular (standard error 7e-8 dB) to a search for periods up to 8 only
     p = cell(gamma_r=1.46, theta=0.1)
     r = simulate_point(p, history_periods=9)
     assert r.outcome == "periodic" and r.response_period == 9 > 8
@@ -689,8 +687,9 @@ def test_differences_that_creep_down_show_an_orbit_approached_at_a_multiplier_ne
 def test_a_slow_approach_is_not_claimed_irregular_by_tight_plain_iteration():
     # a random cell of the full coupling (3 modes, ξ 0.0032): its period-1 orbit attracts at
     # 0.9979 a period. Newton finds it at once; plain iteration to 1e-12 needs 12,182 periods.
-    # Its windows' Γ drift so smoothly (lag-1 correlation near 1) that the trend test passed,
-    # and solver version 17 claimed it irregular at 5,020 periods, 0.094 dB off
+    # Its windows' Γ drift so smoothly (lag-1 correlation near 1) that the trend test passes:
+    # only the creeping-differences test keeps it from an irregular claim (5,020 periods,
+    # 0.094 dB off)
     p = CellParams(theta=1.4488928688435572, sigma=0.11565583381841693,
                    gamma_s=0.9021470911095106, xi=0.0032280050326287174,
                    g1=0.005499961406079232, g2=0.003869274879351087,
@@ -753,9 +752,9 @@ def test_a_repeat_near_a_shorter_period_waits_until_it_is_proven():
 @pytest.mark.parametrize("tol", [1e-9, 1e-12])
 def test_plain_iteration_reports_the_period_of_the_orbit_not_a_multiple(tol: float):
     # Figure 5 at θ 0.5, gap 0.1, γ_r 3.42: the period-1 orbit (multiplier 0.983) is approached
-    # along a direction its 2-period map hardly moves. Up to solver version 16 plain iteration
-    # reported a period-2 orbit (multiplier 0.966), at periodicity_tol 1e-9 with the state 22
-    # times farther from the orbit than the tolerance
+    # along a direction its 2-period map hardly moves: the samples repeat after 2 periods (at
+    # periodicity_tol 1e-9 with the state 22 times farther from the orbit than the tolerance),
+    # which must not be taken for a period-2 orbit
     p = cell(theta=0.5, gamma_r=3.42)
     r = simulate_point(p)
     plain = simulate_point(p, SolverSettings(extrapolate=False, periodicity_tol=tol,
@@ -782,9 +781,9 @@ def test_tight_plain_iteration_reports_a_slow_period_1_orbit_as_period_1():
 
 def test_a_steadily_converging_orbit_is_not_claimed_irregular():
     # Figure 5 at θ 0.5, gap 0.1, γ_r 3.66: the sequence converges to a period-1 orbit of
-    # multiplier 0.966, its differences shrinking steadily; up to solver version 15 the
-    # converged window statistics were claimed irregular at 300 periods (-13.3603 dB, 0.006 dB
-    # off), the hundredfold test over 32 periods (a 0.33-fold shrink) not seeing it
+    # multiplier 0.966, its differences shrinking steadily, which the hundredfold test over 32
+    # periods (a 0.33-fold shrink) does not see: its converged window statistics would be
+    # claimed irregular at 300 periods (-13.3603 dB, 0.006 dB off)
     p = cell(theta=0.5, gamma_r=3.66)
     r = simulate_point(p)
     tight = tight_plain(p, 3_000)
@@ -797,9 +796,9 @@ def test_a_steadily_converging_orbit_is_not_claimed_irregular():
 def test_an_unstable_orbit_the_samples_reach_is_not_reported():
     # Figure 5 at θ 0.3, gap 0.7, γ_r 1.18: the samples come along the stable directions of a
     # period-3 orbit past its period doubling (multiplier -1.026 a return), and their 6-spaced
-    # differences fall to periodicity_tol while the 3-spaced ones still shrink. Plain iteration
-    # reported it as a period-6 orbit; solver version 16 as "near an unstable period-6 orbit
-    # (multiplier 1.053)": the wrong period (it repeats after 3 periods to 1e-12). The
+    # differences fall to periodicity_tol while the 3-spaced ones still shrink: it looks like
+    # an unstable period-6 orbit (multiplier 1.053), the wrong period (it repeats after 3
+    # periods to 1e-12). The
     # trajectory leaves it and settles after ~2,600 periods on the stable period-6 orbit born
     # there, 0.0018 dB away. Within the budget of 1000 periods: unsettled, converging to it
     p = cell(theta=0.3, gamma_r=1.18, g1=0.7, g2=0.7)
@@ -828,8 +827,8 @@ def test_an_unstable_orbit_the_samples_reach_is_not_reported():
 def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
     # Figure 5's cell at θ 0.5, gap 0.1, γ_r 1.42: the period-1 orbit is past its period
     # doubling (its monodromy matrix's spectral radius is 1.025). Extrapolation converges to
-    # unstable fixed points too, and the orbit repeats when integrated from there: solver
-    # version 7 reported it (period 1, Γ -3.6595 dB). The trajectory goes to a period-2 orbit.
+    # unstable fixed points too, and the orbit repeats when integrated from there (period 1,
+    # Γ -3.6595 dB). The trajectory goes to a period-2 orbit.
     p = cell(gamma_r=1.42, theta=0.5)
     r = simulate_point(p)
     # plain iteration settles there after ~500 periods (a long transient: the larger budget
@@ -844,12 +843,10 @@ def test_an_unstable_orbit_that_extrapolation_finds_is_not_reported():
 def test_an_orbit_that_starts_stuck_on_a_stop_is_proven_by_its_exact_matrix():
     # θ 1, σ 0.1, gap 0.1, γ_r 5.312 (work-precision spectrum C): the orbit starts with the
     # tip stuck on a stop, where the engine's differences of the period map grow like 1/step
-    # (perturbations off the stop, where the map is one-sided). Solver version 8 reported it as
-    # soon as it was extrapolated, unproven; versions 9-19 waited until the trajectory was a
-    # hundred times closer: their runs from a state held on a stop let the tip fly through
-    # the stop for a sub-grid interval (``roots.skip_start``), so the confirming runs were not
-    # the trajectory's. Since version 20 they are, the exact matrix (at the orbit's first
-    # release) proves the attraction, and the trajectory is seen to follow its linearized map.
+    # (perturbations off the stop, where the map is one-sided). The confirming runs from a
+    # state held on a stop are the trajectory's (no contact is skipped after a departure,
+    # ``roots.skip_start``), the exact matrix (at the orbit's first release) proves the
+    # attraction, and the trajectory is seen to follow its linearized map.
     p = CellParams(theta=1.0, sigma=0.1, coupling="paper", gamma_s=1.0, gamma_r=5.311864,
                    xi=0.05, g1=0.1, g2=0.1)  # fmt: skip
     r = simulate_point(p)
@@ -872,11 +869,9 @@ def test_an_orbit_that_starts_stuck_on_a_stop_is_proven_by_its_exact_matrix():
 
 def test_an_orbit_that_starts_on_a_stop_is_confirmed_from_there():
     # Figure 5's cell at θ 0.5, gap 1.0, γ_r 1.68: a period-3 orbit whose samples are taken
-    # with the tip on a stop, extrapolated at period 64 with the trajectory 5e-5 away. Version
-    # 8 reported it there unproven; versions 9-19 had a perturbed run with other impacts
-    # there (the run from a state on the stop let the tip through it: no exact matrix) and
-    # waited. Since version 20 the confirming run has the exact matrix, whose multiplier
-    # proves the attraction, and plain iteration to 1e-12 reaches the same orbit.
+    # with the tip on a stop, extrapolated at period 64 with the trajectory 5e-5 away. The
+    # confirming run has the exact matrix, whose multiplier proves the attraction there, and
+    # plain iteration to 1e-12 reaches the same orbit.
     p = cell(gamma_r=1.68, theta=0.5, g1=1.0, g2=1.0)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 3
@@ -894,9 +889,8 @@ def test_a_saddle_the_trajectory_passes_is_not_reported_as_reached():
     # A random cell of the orbit audit (seed 5): two period-1 orbits 8.5e-4 of the state apart.
     # The trajectory comes to 2.3e-6 of the one without a multiplier along its stable manifold
     # (300 times closer than when it was confirmed), then leaves it at ~1.025 a period for the
-    # stable one. Solver version 20 took "a hundred times closer at three returns" as reached
-    # and reported the saddle, 3.4e-6 dB off; an orbit without a multiplier must now be reached
-    # to periodicity_tol.
+    # stable one. "A hundred times closer at three returns" would take the saddle as reached
+    # (3.4e-6 dB off): an orbit without a multiplier must be reached to periodicity_tol.
     p = CellParams(theta=3.4322100042614636, sigma=0.3793026199838141,
                    gamma_s=0.8738989301410469, xi=0.004494211941888832,
                    g1=0.0037277109147143125, g2=0.0037277109147143125,
@@ -959,11 +953,10 @@ def attraction_rate(p: CellParams, x: np.ndarray) -> float:
     return math.exp(slope / 2.0)
 
 
-# Figure 5's cells. θ 0.1, gap 0.7, γ_r 1.16, an extrapolated orbit: solver version 7
-# reported 0.489, the largest Ritz value of the extrapolation, which the sequence's slowest
-# mode hardly entered. θ 0.3, gap 0.3, γ_r 0.86, an orbit the trajectory's own samples reach
-# (no extrapolation): version 8 reported their contraction d_k/d_(k-1), 0.597, where the
-# orbit attracts at 0.72.
+# Figure 5's cells. θ 0.1, gap 0.7, γ_r 1.16, an extrapolated orbit: the largest Ritz value of
+# the extrapolation is 0.489, which the sequence's slowest mode hardly entered. θ 0.3, gap 0.3,
+# γ_r 0.86, an orbit the trajectory's own samples reach (no extrapolation): their contraction
+# d_k/d_(k-1) is 0.597, where the orbit attracts at 0.72. Neither estimate is the multiplier.
 @pytest.mark.parametrize(
     "kw",
     [dict(gamma_r=1.16, theta=0.1, g1=0.7, g2=0.7), dict(gamma_r=0.86, theta=0.3, g1=0.3, g2=0.3)],
@@ -1004,8 +997,7 @@ def monodromy_radius(p: CellParams, x: np.ndarray, q: int, rel: float = 1e-6,
 def test_a_long_orbit_reached_by_itself_reports_its_monodromy_radius():
     # Figure 5, θ 0.3, gap 0.7, γ_r 0.98: a period-21 orbit the trajectory's own samples reach.
     # The 12 side runs of 21 periods more than double the point's periods (they may triple
-    # them), and up to solver version 9 the sequence's contraction stood in: 0.224, where the
-    # radius is 0.104.
+    # them); the sequence's contraction, 0.224, is no stand-in for the radius, 0.104.
     p = cell(gamma_r=0.98, theta=0.3, g1=0.7, g2=0.7)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 21
@@ -1017,9 +1009,8 @@ def test_no_multiplier_stands_in_where_none_was_computed():
     # Any orbit of a fixed budget (early stop off), which runs nothing beyond it, has none.
     # Figure 5, θ 0.2, gap 0.1, γ_r 0.94: a period-21 orbit reached by itself that starts with
     # the tip stuck on a stop, where a perturbed run has other impacts (no finite-difference
-    # Jacobian). Up to solver version 9 the sequence's contraction stood in as the multiplier
-    # (0.187); versions 10-12 had none; since 13 the exact matrix at its first release gives
-    # it, and central differences along the stop agree.
+    # Jacobian); the exact matrix at its first release gives the multiplier, and central
+    # differences along the stop agree.
     p = cell(gamma_r=0.94, theta=0.2, g1=0.1, g2=0.1)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 21
@@ -1031,8 +1022,8 @@ def test_no_multiplier_stands_in_where_none_was_computed():
 
 def test_a_long_orbit_gets_its_exact_multiplier_from_its_measuring_run():
     # Figure 5, θ 0.1, gap 1.0, γ_r 0.86: a period-33 orbit reached after 141 periods. The 12·33
-    # periods of finite differences would almost quadruple its cost, so up to solver version 10
-    # it had no multiplier; the exact monodromy matrix comes from the run that measures it.
+    # periods of finite differences would almost quadruple its cost; the exact monodromy
+    # matrix comes from the run that measures it.
     p = cell(gamma_r=0.86, theta=0.1, g1=1.0, g2=1.0)
     r = simulate_point(p)
     assert r.outcome == "periodic" and r.response_period == 33

@@ -108,10 +108,10 @@ def test_short_batches_give_the_same_numbers_to_the_bit(monkeypatch, method):
 @pytest.mark.parametrize("gamma_r", [2.3624161073825505, 0.9697986577181208])
 def test_short_batches_see_a_pending_orbit_reached_in_the_same_period(monkeypatch, gamma_r):
     # A pending orbit (confirmed where the map is not smooth) is reported once the trajectory
-    # reaches it, looked at between batches. Up to solver version 21 a batch cut short by the
-    # clock was looked at too, so under load the reach was seen sooner: the same orbit with
-    # fewer periods, steps and another steady_period (benchmarks/batch_cuts.py). These two
-    # points that showed it (gaps 0.1 and 0.3) report the same work to the bit.
+    # reaches it, looked at at the ends of the batches an unpaced run makes, never at a cut by
+    # the clock: were it looked at there, the reach would be seen sooner under load (the same
+    # orbit with fewer periods, steps and another steady_period; audits/batch_cuts.py). These
+    # two points (gaps 0.1 and 0.3) report the same work to the bit with one-period batches.
     kw = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, gamma_r=gamma_r)
     gap = 0.1 if gamma_r > 2.0 else 0.3
     point = CellParams(g1=gap, g2=gap, **kw)

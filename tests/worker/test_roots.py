@@ -237,10 +237,9 @@ def entries(rng: np.random.Generator, n: int, stiff: bool = False):
 def test_skip_start_never_skips_a_contact_that_starts_at_once(stiff):
     # A gap that closes at once (f'' < 0) is a contact, not a departure: no start may be
     # returned beyond a stretch where f is below zero by more than round-off, even where f is
-    # above zero again at the interval's end (version 19 returned that end: at a reset from a
-    # state held on a stop, the tip flew through the stop for a sub-grid interval, 10 % of
-    # the clearance deep; a random cell 3e-6 dB off its 256-interval reference). Version 19
-    # returned a start past a dip at 92 of the 200 plain sums here and 136 of the stiff ones.
+    # above zero again at the interval's end: a start past the dip lets the tip fly through
+    # the stop for a sub-grid interval (at a run from a state held on a stop, up to a tenth of
+    # the clearance deep), and the answer then depends on the sub-grid.
     rng = np.random.default_rng(11)
     back_out = 0
     for c, lam, off in entries(rng, 200, stiff=stiff):

@@ -162,7 +162,7 @@ def test_the_history_of_an_orbit_with_many_events_a_period_is_whole():
     assert off.history["tau"][0] - (end - n * T) <= T / 32
     assert off.history["tau"][-1] == pytest.approx(end, rel=1e-9)
     # and a history longer than the samples the engine keeps (319 periods): its first period
-    # end is reached again from the start (up to solver version 18 it began 145 periods late)
+    # end is reached again from the start, not from where the kept samples begin
     long = simulate_point(p, SolverSettings(early_stop=False, max_periods=600),
                           history_periods=400)  # fmt: skip
     h = long.history

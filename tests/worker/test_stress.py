@@ -1,5 +1,5 @@
 """Extreme parameters for every method: finite or failed with a reason, and right where a
-closed form is known (docs/accuracy.md; the full sweep is benchmarks/stress.py)."""
+closed form is known (docs/accuracy.md; the full sweep is audits/stress.py)."""
 
 import math
 
@@ -66,7 +66,7 @@ def test_thirty_modes_pinned_and_impacting(method):
 
 def test_paper_coupling_at_theta_1e3_diverges_and_every_method_says_so_quickly():
     # The published (non-Lagrangian) coupling gains energy at every impact when θ is large:
-    # all three methods find the same growth. The event solver used to hang on the overflow.
+    # all three methods find the same growth, and none may hang on the overflow.
     pt = {**BASE, "theta": 1e3}
     for method in METHODS:
         rec = simulate_chunk([pt], {"method": method})[0]
@@ -95,7 +95,8 @@ def test_euler_refusal_is_a_value_error_naming_steps_per_period():
     [{"modes": 30}, {"xi": 0.5, "sigma": 1.0, "modes": 8}, {"xi": 0.5, "modes": 30}],
 )
 def test_euler_default_steps_are_never_refused(kw):
-    # Explicit damping of stiff modes used to make the default (Δτ·ω̃_max = 1) unstable.
+    # Explicit damping of stiff modes can make Δτ·ω̃_max = 1 unstable: the default steps halve
+    # below the damping-aware limit.
     sys_ = assemble(CellParams(**{**BASE, **kw}))
     n = euler_default_steps(sys_)
     check_stable(sys_, 2 * math.pi / sys_.params.gamma_r / n)
