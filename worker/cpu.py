@@ -5,7 +5,7 @@ A point's last bits depend on the CPU in three ways:
 * OpenBLAS (numpy's and scipy's copies: the set-up's eigen-decompositions, inverses and
   products, and numba's ``np.linalg`` inside kernels) picks its kernels by CPU when it loads;
   forcing other kernels (``Sandybridge``) on an AVX2 machine changes 59 of the point-engine
-  benchmark's 120 points, 2 of them in outcome or period (``benchmarks/cpu_targets.py``).
+  benchmark's 120 points, 2 of them in outcome or period (``audits/cpu_targets.py``).
 * numba compiles for the host CPU: its name and, separately, its feature list. Compiling for a
   ``generic`` x86-64 instead changes 55 of them, 2 in outcome or period. Naming the CPU alone is
   not enough: numba still adds the host's features (``NUMBA_CPU_FEATURES`` unset), so on an

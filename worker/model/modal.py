@@ -59,7 +59,7 @@ def betas(n: int) -> NDArray[np.float64]:
 
 @cache
 def _betas_array(n: int) -> NDArray[np.float64]:
-    # the roots are universal: solved once per process (every point used to pay ~0.1 ms)
+    # the roots are universal: solved once per process, not ~0.1 ms at every point
     beta = (np.arange(1, n + 1, dtype=np.float64) - 0.5) * np.pi
     for _ in range(50):
         sech = _sech(beta)

@@ -739,7 +739,7 @@ def _follows(
     fits three steps one at a time by chance does not fit seven chained (θ 0.5, gap 1,
     γ_r 1.04). A trajectory approaching the orbit fits to ~1 % (the median at Figure 5's
     orbits), less as it gets closer. Chained, the newest sample must also have come as much
-    closer as the map brings it, to ``LINEAR_FIT`` of that approach (solver version 16): near a
+    closer as the map brings it, to ``LINEAR_FIT`` of that approach: near a
     multiplier of modulus 1 the map hardly moves a deviation closer, and a fit of positions
     alone is passed by samples on a nearby orbit. ``frame``: gives :func:`eigen_frame` of M
     where the caller keeps it (a pending orbit's matrix is fitted again at every batch);
@@ -757,7 +757,7 @@ def _follows(
         # γ_s 0.8, ξ 0.08, γ_r 1: a period-1 orbit of multiplier -0.9995 fitted to 13 % by
         # samples approaching the period-2 orbit around it; the map brings them 0.6 % closer
         # over the 8 samples, and they came 12 % closer). The approach is measured at the
-        # newest sample's phase (solver version 19): the max-norm of a turning deviation swings
+        # newest sample's phase: the max-norm of a turning deviation swings
         # with the turn (fourfold for a multiplier pair turning a seventh of a turn a period,
         # at a random cell at θ 9.15, 9 modes, γ_r 0.818), and compared at two phases it
         # measured the turn.
@@ -1083,9 +1083,8 @@ class _Engine:
         # The batch an unpaced run would make ends at `goal`, and it has these `checks`. The
         # clock may cut it into shorter batches (_pace); between those only the limits and
         # cancel are looked at, so the work a point reports never depends on the machine's
-        # load. (Up to solver version 21 every cut was a batch end: under load a pending
-        # orbit's reach was seen sooner; with every batch one period, 146 of Figure 5's 5,820
-        # points reported 1-30 fewer periods, benchmarks/batch_cuts.py.)
+        # load (were every cut a batch end, a loaded machine would see a pending orbit's reach
+        # sooner: audits/batch_cuts.py).
         goal = 0
         while self.period < s.max_periods:
             if self.period >= goal:
@@ -1201,10 +1200,9 @@ class _Engine:
         (``event``: from the measuring run itself, at no cost); else the finite differences'
         where the map is smooth and they at most triple the point's cost (``CHECK_COST``); the
         exact one at zero gaps; else none: no Jacobian, a check too costly, or early stop off (a
-        fixed budget, as the paper's scheme, runs nothing more). Up to solver version 9 the
-        sequence's contraction d_k/d_{k-p} stood in where the check was not run (at most
-        doubling the cost) or the map not smooth: an estimate, at Figure 5's 8 such orbits
-        (periods 18-39) off by up to 0.12 (0.224 for 0.104) or missing."""
+        fixed budget, as the paper's scheme, runs nothing more). No estimate stands in: the
+        sequence's contraction d_k/d_{k-p} is off by up to 0.12 at Figure 5's long orbits
+        (periods 18-39)."""
         snap = self.run.save()
         try:
             got = self._side_run(x0, p, exact=self.s.early_stop)
@@ -1370,11 +1368,11 @@ class _Engine:
         over the orbit's branch of the map (its impacts over the q periods before it). A fit of
         the orbit's linearized map (:func:`_follows`) shows an approach only inside a ball where
         that map holds; a return as close with other impacts shows a branch change there (a
-        grazing contact), which the fit's samples may have missed by chance (solver version 19:
-        a random cell at θ 9.15, 9 modes, full coupling, γ_r 0.818, whose period-1 orbit of
-        7 impacts a period and multiplier 0.9967 is circled by the period-7 orbit the
-        trajectory settles on, an 8th, grazing impact every few periods; 8 returns in a row
-        without one fitted the map to 0.3 %, and version 18 reported the orbit, 7e-4 dB off)."""
+        grazing contact), which the fit's samples may have missed by chance (a random cell at
+        θ 9.15, 9 modes, full coupling, γ_r 0.818: its period-1 orbit of 7 impacts a period and
+        multiplier 0.9967 is circled by the period-7 orbit the trajectory settles on, an 8th,
+        grazing impact every few periods; 8 returns in a row without one fit the map to 0.3 %,
+        and the orbit, 7e-4 dB off, is not the answer)."""
         q = o.p
         idx = self._return_index(o, self.nrecent // q)
         if idx is None:
@@ -1406,8 +1404,7 @@ class _Engine:
         An orbit without a multiplier must be reached to ``periodicity_tol``: at a random cell
         (``orbit_audit.py --random 3000 --seed 5``, θ 3.43, γ_r 0.446) the trajectory came 300
         times closer to a saddle orbit along its stable manifold, 2.3e-6 of the state, and then
-        left it for the stable orbit beside it (3.4e-6 dB away) at ~1.025 a period; solver
-        version 20 reported the saddle."""
+        left it for the stable orbit beside it (3.4e-6 dB away) at ~1.025 a period."""
         for pend in self.pending:
             o = pend.orbit
             near = slack * self.s.periodicity_tol * float(np.max(np.abs(o.x0)))
@@ -1516,8 +1513,8 @@ class _Engine:
                         # sequence miss the slowest mode (0.41 where the map has 0.64) or
                         # add spurious ones (above 1 where it has 0.55). Where the map is not
                         # smooth (None: sticking, grazing, jumps; undamped zero gaps) attraction
-                        # is not proven: the orbit waits until the trajectory reaches it (solver
-                        # version 9; up to 8 it stood on its confirmation alone).
+                        # is not proven: the orbit waits until the trajectory reaches it (a
+                        # confirmation alone proves no attraction).
                         if self._tried(xs, 1e-6):
                             return None  # checked already, from another candidate p
                         if q < p:  # the q-period map's own matrix: one run of q periods
@@ -1527,7 +1524,7 @@ class _Engine:
                                                   J, decides=True)  # fmt: skip
                         orbit = _Orbit(xs.copy(), rows, q, lam)
                         # An attracting orbit is the one the trajectory approaches only if
-                        # its samples follow the orbit's linearized map (solver version 15):
+                        # its samples follow the orbit's linearized map:
                         # a stable orbit may be circled by another orbit or by chaos that
                         # never reaches it, and a slowly contracting sequence cannot tell.
                         # (M is None only at zero gaps, where every state is attracted.)
@@ -1637,7 +1634,7 @@ class _Engine:
         state: the response is approaching (or is) a period-p orbit, not irregular (0: none).
         Every p the samples kept hold twice over (p ≤ 31): a slowly contracting period-17 orbit
         was claimed irregular while p ≤ 8 was watched. Or, over a longer history, the smallest
-        p (≤ 40) whose differences shrank steadily (:func:`_shrinking_p`; solver version 16): a
+        p (≤ 40) whose differences shrank steadily (:func:`_shrinking_p`): a
         period-13 orbit of multiplier 0.62 shrank them 130-fold over its last 10 returns, but
         only 80-fold over 128 periods, and was claimed irregular at 260 periods."""
         if self.nrecent < RECENT:

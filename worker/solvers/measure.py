@@ -88,8 +88,8 @@ CHECK_CANDIDATE = 4
 CHECK_QUIET = 8
 
 # Longest response period looked for: an orbit that repeats (``periodicity``). Orbits of period
-# 9, 10, 11 and 24 occur in the nightly suite and in Figure 5 (docs/solvers.md); with 8 they ran
-# into the window statistics and were reported irregular with standard errors of 1e-8 dB.
+# 9, 10, 11 and 24 occur in the nightly suite and in Figure 5 (docs/solvers.md); a shorter
+# search would leave them to the window statistics, as irregular with standard errors of 1e-8 dB.
 MAX_PERIOD = 40
 # Longest period whose geometric approach is extrapolated (``candidate``; ``engine._extrapolate``
 # needs four p-spaced samples of the 64 it keeps).

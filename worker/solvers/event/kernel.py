@@ -131,7 +131,7 @@ def _ends(RV, B4, lam, eh, r, row, al, ae, nk):
     (as :func:`_step`), the observable ``row`` and its slope (``row + 1``), s and ṡ at the
     interval's end, the fourth derivative's bound and the size of the sum from ``al``
     (``Σ|RV_k||λ_k|⁴|a_k|``, ``Σ|RV_k||a_k|``, growing modes at the end) and
-    :func:`_magnitude` of ``ae``. (Seven passes before, each reloading the coefficients.)"""
+    :func:`_magnitude` of ``ae``, in one pass over the coefficients."""
     big = 0.0
     f1 = 0.0
     fd1 = 0.0
