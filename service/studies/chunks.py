@@ -46,6 +46,7 @@ __all__ = [
     "data_root",
     "is_study_id",
     "iter_chunk_ranges",
+    "study_folder",
     "with_transient_flag",
 ]
 
@@ -71,6 +72,12 @@ def is_study_id(text: str) -> bool:
 def data_root(out: str | os.PathLike[str] | None = None) -> Path:
     """The data root: ``out``, else ``./data`` (callers pass ``Settings.data_dir``)."""
     return DEFAULT_DATA_DIR if out is None else Path(out)
+
+
+def study_folder(root: str | os.PathLike[str] | None, study_id: str) -> Path:
+    """The folder of a study's files under a data root (``results.nc`` is there once it
+    finishes)."""
+    return data_root(root) / "studies" / study_id
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
@@ -231,7 +238,7 @@ class StudyStore:
         self.id = study.id
         if not is_study_id(self.id):
             raise ValueError(f"study id must be a hex digest, got {self.id!r}")
-        self.folder = data_root(root) / "studies" / self.id
+        self.folder = study_folder(root, self.id)
         self.chunk_dir = self.folder / "chunks"
         #: The fields its chunk files keep (a sweep's also say where each point started).
         self.fields = CHUNK_FIELDS + (LINE_FIELDS if study.sweep is not None else ())

@@ -1,0 +1,136 @@
+"""``impactcell plot``: the service's figures from a results file or a study id, no service.
+
+One small study is run in this process (serial, a few seconds) into a data dir; the service's
+app, opened on the same data dir (no job runner), draws its ``/plots`` from the same results
+file, so the two can be compared byte for byte (SVG output is reproducible).
+"""
+
+from __future__ import annotations
+
+import json
+import typing
+from collections.abc import Iterator
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.analysis.figures import KINDS
+from service.api.app import create_app
+from service.api.routes import results as results_route
+from service.api.settings import Settings
+from service.cli.study import PLOT_KINDS
+from service.local import run
+from tests.service.helpers import run_cli, tiny_study
+
+# gap × theta × gamma_r, 24 points: a map with an axis fixed by default
+DEFINITION = tiny_study(name="plot", num=6)
+DEFINITION["grid"]["theta"] = [0.3, 0.5]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimpleNamespace]:
+    """The study run into a data dir, and the service's app on that data dir."""
+    data = tmp_path_factory.mktemp("plot") / "data"
+    ds = run(DEFINITION, data_dir=data, serial=True)  # gap × theta × gamma_r, 24 points
+    with TestClient(create_app(Settings(data_dir=data), run_jobs=False)) as tc:
+        sid = tc.post("/studies", json=DEFINITION).json()["id"]
+        assert sid == ds.attrs["study_id"]  # the service finds the results file written here
+        yield SimpleNamespace(id=sid, data=data, tc=tc,
+                              file=data / "studies" / sid / "results.nc")  # fmt: skip
+
+
+def test_the_kinds_are_those_of_the_figures_and_of_the_route() -> None:
+    assert set(PLOT_KINDS) == set(KINDS)
+    route_kinds = typing.get_args(
+        typing.get_type_hints(results_route.plot, include_extras=True)["kind"]
+    )
+    assert set(route_kinds) == set(KINDS)
+
+
+@pytest.mark.parametrize(
+    ("kind", "options", "query"),
+    [
+        ("bandgap", [], {}),
+        ("transmittance", ["--sel", "theta=0.5"], {"theta": "0.5"}),
+        ("impact-effect", [], {}),
+        ("effective-mass", ["--x", "gamma_r", "--sel", "gap=0.5"], {"x": "gamma_r", "gap": "0.5"}),
+        ("bandgap", ["--variable", "transmittance_linear_db", "--threshold-db", "-3"],
+         {"variable": "transmittance_linear_db", "threshold_db": "-3"}),
+    ],
+)  # fmt: skip
+def test_the_same_figure_as_the_service_by_file_or_by_id(
+    study: SimpleNamespace, tmp_path: Path, kind: str, options: list[str], query: dict[str, str]
+) -> None:
+    served = study.tc.get(f"/studies/{study.id}/plots/{kind}.svg", params=query)
+    assert served.status_code == 200, served.text
+    by_file = tmp_path / "file.svg"
+    out = run_cli("plot", str(study.file), "--kind", kind, "--out", str(by_file), *options)
+    assert out.returncode == 0, out.stderr
+    assert by_file.read_bytes() == served.content
+    by_id = tmp_path / "id.svg"
+    out = run_cli("plot", study.id, "--data-dir", str(study.data), "--kind", kind,
+                  "--out", str(by_id), *options)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert by_id.read_bytes() == served.content
+    # stdout names what the service's header says was fixed by default
+    fixed = json.loads(served.headers["x-impactcell-fixed"])
+    assert out.stdout.startswith(f"{by_id}  {kind} over {fixed['x']}")
+    for name, value in fixed["fixed"].items():
+        assert f"{name} = {value}" in out.stdout
+
+
+def test_impact_effect_is_the_bandgap_map_of_the_impact_effect(
+    study: SimpleNamespace, tmp_path: Path
+) -> None:
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    assert (
+        run_cli("plot", str(study.file), "--kind", "impact-effect", "--out", str(a)).returncode == 0
+    )
+    assert run_cli("plot", str(study.file), "--variable", "impact_effect_db",
+                   "--out", str(b)).returncode == 0  # fmt: skip
+    assert a.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert a.read_bytes() == b.read_bytes()
+    served = study.tc.get(f"/studies/{study.id}/plots/impact-effect.png")
+    assert served.status_code == 200 and served.headers["content-type"] == "image/png"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--out", "x.jpg"], "--out x.jpg: the file name must end in .png or .svg"),
+        (["--sel", "theta"], "--sel 'theta' is not NAME=VALUE"),
+        (["--sel", "theta=0.4"], "theta=0.4 is not a coordinate value; values are 0.3, 0.5 "
+         "(use --nearest)"),
+        (["--variable", "nope"], "--variable='nope' cannot be mapped"),
+        (["--kind", "hysteresis"], "no hysteresis"),
+        (["--x", "sigma"], "sigma"),
+        (["--threshold-db", "inf"], "argument --threshold-db: must be a finite number"),
+    ],
+)  # fmt: skip
+def test_bad_options_exit_2_naming_the_flag_and_write_nothing(
+    study: SimpleNamespace, tmp_path: Path, args: list[str], message: str
+) -> None:
+    target = [] if args[0] == "--out" else ["--out", str(tmp_path / "f.png")]
+    out = run_cli("plot", str(study.file), *args, *target)
+    assert out.returncode == 2
+    assert message in out.stderr and out.stderr.count("error:") == 1, out.stderr
+    assert "Traceback" not in out.stderr
+    assert not (tmp_path / "f.png").exists()
+
+
+def test_a_study_id_without_results_or_a_file_that_is_not_results(
+    study: SimpleNamespace, tmp_path: Path
+) -> None:
+    out = run_cli("plot", "0123456789abcdef0123", "--data-dir", str(study.data))
+    assert out.returncode == 2
+    assert "study 0123456789abcdef0123 has no results file in" in out.stderr
+    other = tmp_path / "other.nc"
+    import xarray as xr
+
+    xr.Dataset({"a": ("x", [1.0, 2.0])}).to_netcdf(other)
+    out = run_cli("plot", str(other))
+    assert out.returncode == 2 and "is not an impactcell results file" in out.stderr
+    out = run_cli("plot", str(tmp_path / "missing.nc"))
+    assert out.returncode == 2 and "no such results file" in out.stderr
