@@ -123,3 +123,17 @@ def test_run_help_gives_the_runners_chunk_size(capsys: pytest.CaptureFixture[str
     assert exc.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert f"points per dask task (default {DEFAULT_CHUNK_SIZE}, less for small studies)" in text
+
+
+def test_the_docs_list_what_impactcell_studies_lists(capsys: pytest.CaptureFixture[str]) -> None:
+    import re
+
+    text = (Path(__file__).resolve().parents[3] / "docs" / "studies.md").read_text()
+    section = text.split("## Shipped studies", 1)[1].split("\n## ", 1)[0]
+    documented = {
+        m.group(1): int(m.group(2).replace(",", ""))
+        for m in re.finditer(r"^\| `([\w-]+)` \| ([\d,]+) \|", section, re.MULTILINE)
+    }
+    assert main(["studies", "--json"]) == 0
+    listed = {r["name"]: r["points"] for r in json.loads(capsys.readouterr().out)}
+    assert documented == listed
