@@ -10,7 +10,7 @@ allowed.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import xarray as xr
 
@@ -18,7 +18,7 @@ from service.analysis.bands import MAP_VARIABLES, bandgap_map
 from service.analysis.hysteresis import fixed_of, hysteresis_map
 from service.analysis.selection import AnalysisError, Selection, View, default_view
 
-__all__ = ["KINDS", "describe", "figure", "map_variable"]
+__all__ = ["KINDS", "Drawn", "describe", "figure", "map_variable"]
 
 #: The figures there are: ``impact-effect`` is the bandgap map of Γ − Γ_lin (threshold −1 dB).
 KINDS: tuple[str, ...] = (
@@ -28,6 +28,16 @@ KINDS: tuple[str, ...] = (
     "effective-mass",
     "hysteresis",
 )
+
+
+class Drawn(NamedTuple):
+    """A figure: its ``image`` (PNG or SVG bytes), the ``view`` it shows, and the ``data``
+    drawn when it is a map (:func:`~service.analysis.bands.bandgap_map` or
+    :func:`~service.analysis.hysteresis.hysteresis_map`; None for curves)."""
+
+    image: bytes
+    view: View
+    data: xr.Dataset | None = None
 
 
 def map_variable(variable: str, reference: str = "none") -> str:
@@ -65,8 +75,8 @@ def figure(
     jump_db: float = 1.0,
     tol_db: float = 0.05,
     check: Callable[[xr.Dataset], None] | None = None,
-) -> tuple[bytes, View]:
-    """A figure of ``ds`` as PNG or SVG bytes, and the view it shows.
+) -> Drawn:
+    """A figure of ``ds`` as PNG or SVG bytes, the view it shows and the map it draws.
 
     Parameters
     ----------
@@ -108,17 +118,18 @@ def figure(
                            tol_db=tol_db)  # fmt: skip
         if check is not None:
             check(h)
-        return plots.hysteresis_png(h, fmt=fmt), View(str(h.attrs["x"]), None, {}, fixed_of(h))
+        view = View(str(h.attrs["x"]), None, {}, fixed_of(h))
+        return Drawn(plots.hysteresis_png(h, fmt=fmt), view, h)
     if kind == "transmittance":
         v = default_view(ds, "transmittance_db", x, hue, sel)
         image = plots.transmittance_png(ds, v.sel, x=v.x, hue=v.y, nearest=nearest,
                                         fixed=v.fixed, fmt=fmt)  # fmt: skip
-        return image, v
+        return Drawn(image, v)
     if kind == "effective-mass":
         v = default_view(ds, "theta_eff", x, None, sel, auto_y=False)
         image = plots.effective_mass_png(ds, v.sel, x=v.x, nearest=nearest, fixed=v.fixed,
                                          fmt=fmt)  # fmt: skip
-        return image, v
+        return Drawn(image, v)
     if kind == "impact-effect":
         if variable not in ("transmittance_db", "impact_effect_db"):
             raise AnalysisError(
@@ -134,7 +145,7 @@ def figure(
     v = default_view(ds, "transmittance_db", x, y, sel)
     m = bandgap_map(ds, v.x, v.y, threshold_db=threshold_db, sel=v.sel, nearest=nearest,
                     variable=variable)  # fmt: skip
-    return plots.bandgap_png(m, fixed=v.fixed, fmt=fmt), v
+    return Drawn(plots.bandgap_png(m, fixed=v.fixed, fmt=fmt), v, m)
 
 
 def describe(view: View) -> dict[str, Any]:

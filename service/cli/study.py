@@ -161,7 +161,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     default = "impact_effect_db" if args.kind == "impact-effect" else "transmittance_db"
     try:
         variable = map_variable(args.variable or default, args.reference)
-        image, view = figure(
+        image, view, drawn = figure(
             ds, args.kind, fmt, sel, x=args.x, y=args.y, hue=args.hue,
             threshold_db=args.threshold_db, nearest=args.nearest, variable=variable,
             jump_db=args.jump_db, tol_db=args.tol_db,
@@ -175,7 +175,25 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     fixed = ", ".join(f"{k} = {v}" for k, v in shown["fixed"].items())
     print(f"{out}  {args.kind} over {axes}" + (f"; fixed at their first value: {fixed}" if fixed
                                                 else ""))  # fmt: skip
+    if args.kind in ("bandgap", "impact-effect") and drawn is not None:
+        for line in _band_lines(drawn):
+            print(line)
     return 0
+
+
+def _band_lines(m: Any) -> list[str]:
+    """What a bandgap map found: what its bands mean, then its bands in x per value of y."""
+    from service.analysis.bands import bandgap_json
+    from service.cli.service import _spans
+
+    doc = bandgap_json(m)
+    lines = [f"bands: {doc['threshold']['meaning']}"]
+    for row in doc["edges"]:
+        y = row["y"]
+        shown = f"{y:g}" if isinstance(y, float | int) else str(y)
+        where = "" if doc["y"] is None else f"{doc['y']} {shown}: "
+        lines.append(f"  {where}{doc['x']} in {_spans(row['bands'])}")
+    return lines
 
 
 def _cmd_studies(args: argparse.Namespace) -> int:

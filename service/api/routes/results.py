@@ -468,7 +468,7 @@ def plot(
     variable = map_variable(variable, reference)
     ds, _path = load_dataset(settings, catalogue, study_id)
     try:
-        image, v = figures.figure(
+        image, v, _ = figures.figure(
             ds, kind, fmt, coords_of(request), x=x, y=y, hue=hue, threshold_db=threshold_db,
             nearest=nearest, variable=variable, jump_db=jump_db, tol_db=tol_db,
             check=lambda h: _check_hysteresis(study_id, h),

@@ -96,6 +96,25 @@ def test_impact_effect_is_the_bandgap_map_of_the_impact_effect(
     assert served.status_code == 200 and served.headers["content-type"] == "image/png"
 
 
+def test_a_map_prints_the_band_edges_the_service_finds(
+    study: SimpleNamespace, tmp_path: Path
+) -> None:
+    from service.cli.service import _spans
+
+    out = run_cli("plot", str(study.file), "--kind", "impact-effect", "--sel", "theta=0.5",
+                  "--out", str(tmp_path / "e.png"))  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    doc = study.tc.get(
+        f"/studies/{study.id}/bandgap", params={"variable": "impact_effect_db", "theta": 0.5}
+    ).json()
+    lines = out.stdout.splitlines()
+    assert lines[1] == f"bands: {doc['threshold']['meaning']}"
+    assert lines[2:] == [
+        f"  gap {row['y']:g}: gamma_r in {_spans(row['bands'])}" for row in doc["edges"]
+    ]
+    assert len(lines[2:]) == 2  # one line per gap
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
