@@ -65,10 +65,22 @@ def test_bad_studies_are_errors_naming_every_problem(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_study_file_runs_on_the_embedded_cluster(tmp_path: Path) -> None:
-    f = tmp_path / "s.yaml"
-    f.write_text(yaml.safe_dump(tiny_study(num=6)))
-    ds = run(f, data_dir=tmp_path / "cluster", workers=1)
-    ref = run(f, data_dir=tmp_path / "serial", serial=True)
+def test_the_documented_call_runs_a_study_file_on_the_embedded_cluster(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The Python block of docs/studies.md "Without the service", as written, in a folder
+    # holding mycell.yaml.
+    text = (Path(__file__).resolve().parents[2] / "docs" / "studies.md").read_text()
+    section = text.split("## Without the service", 1)[1].split("\n## ", 1)[0]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("IMPACTCELL_DATA_DIR", str(tmp_path / "cluster"))
+    Path("mycell.yaml").write_text(yaml.safe_dump(tiny_study(num=6)))
+    scope: dict[str, object] = {}
+    exec(compile(code, "docs/studies.md", "exec"), scope)
+    ds = scope["ds"]
+    assert isinstance(ds, xr.Dataset)
+    assert Path("effect.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ref = run("mycell.yaml", data_dir=tmp_path / "serial", serial=True)
     xr.testing.assert_identical(comparable(ds), comparable(ref))
     assert os.path.isfile(tmp_path / "cluster" / "studies" / ds.attrs["study_id"] / "results.nc")
