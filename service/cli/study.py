@@ -114,13 +114,13 @@ def _results_of(source: str, data_dir: str | None) -> Any:
     """The results dataset of a results file, or of a study id in the data dir."""
     from pathlib import Path
 
-    from service.studies.chunks import is_study_id, study_folder
+    from service.studies.chunks import RESULTS_FILE, is_study_id, study_folder
     from service.studies.dataset import open_results
 
     path = Path(source)
     if not path.exists() and is_study_id(source):
         settings = settings_from_flags(data_dir=data_dir)
-        path = study_folder(settings.data_dir, source) / "results.nc"
+        path = study_folder(settings.data_dir, source) / RESULTS_FILE
         if not path.is_file():
             raise ValueError(
                 f"study {source} has no results file in {settings.data_dir} ({path}): it has "

@@ -38,6 +38,7 @@ from worker.solvers.settings import TRANSIENT_NOTE
 __all__ = [
     "CHUNK_FIELDS",
     "DEFAULT_DATA_DIR",
+    "RESULTS_FILE",
     "STUDY_ID",
     "PartialState",
     "record_columns",
@@ -51,6 +52,8 @@ __all__ = [
 ]
 
 DEFAULT_DATA_DIR = Path("data")
+#: The name of a finished study's collated results file, in its folder (:func:`study_folder`).
+RESULTS_FILE = "results.nc"
 #: A study id: a hex content hash (the only text a study's file paths are built from).
 STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
@@ -250,7 +253,7 @@ class StudyStore:
     @property
     def results_path(self) -> Path:
         """Where the collated NetCDF file goes."""
-        return self.folder / "results.nc"
+        return self.folder / RESULTS_FILE
 
     @property
     def definition_path(self) -> Path:
