@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from typing import Any
 
 from service.cli.common import finite_float, positive_int, probe_scheduler, settings_from_flags
@@ -168,7 +169,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         )  # fmt: skip
     except AnalysisError as exc:
         text = in_flag_terms(str(exc), _PLOT_FLAGS).replace("nearest=true", "--nearest")
-        raise ValueError(text) from None
+        # "jump_db=0.0 must be positive" -> "--jump-db 0.0 must be positive"
+        raise ValueError(re.sub(r"(--[\w-]+)=", r"\1 ", text)) from None
     out.write_bytes(image)
     shown = describe(view)
     axes = " × ".join(a for a in (shown["x"], shown["y"]) if a)

@@ -81,6 +81,25 @@ def test_the_same_figure_as_the_service_by_file_or_by_id(
         assert f"{name} = {value}" in out.stdout
 
 
+def test_the_hysteresis_of_a_sweep_is_the_services(tmp_path: Path) -> None:
+    d = tiny_study(name="sweep", num=5, gaps=(0.3,))
+    d["sweep"] = {"axis": "gamma_r", "directions": ["up", "down"]}
+    ds = run(d, data_dir=tmp_path / "data", serial=True)
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
+        sid = tc.post("/studies", json=d).json()["id"]
+        served = tc.get(f"/studies/{sid}/plots/hysteresis.svg", params={"tol_db": 0.01})
+    assert served.status_code == 200, served.text
+    out = run_cli("plot", str(tmp_path / "data" / "studies" / sid / "results.nc"), "--kind",
+                  "hysteresis", "--tol-db", "0.01", "--out", str(tmp_path / "h.svg"))  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "h.svg").read_bytes() == served.content
+    assert out.stdout.startswith(f"{tmp_path / 'h.svg'}  hysteresis over gamma_r")
+    assert ds.attrs["study_id"] == sid
+    bad = run_cli("plot", str(tmp_path / "data" / "studies" / sid / "results.nc"), "--kind",
+                  "hysteresis", "--jump-db", "0", "--out", str(tmp_path / "j.svg"))  # fmt: skip
+    assert bad.returncode == 2 and "--jump-db 0.0 must be positive" in bad.stderr
+
+
 def test_impact_effect_is_the_bandgap_map_of_the_impact_effect(
     study: SimpleNamespace, tmp_path: Path
 ) -> None:
@@ -122,7 +141,7 @@ def test_a_map_prints_the_band_edges_the_service_finds(
         (["--sel", "theta"], "--sel 'theta' is not NAME=VALUE"),
         (["--sel", "theta=0.4"], "theta=0.4 is not a coordinate value; values are 0.3, 0.5 "
          "(use --nearest)"),
-        (["--variable", "nope"], "--variable='nope' cannot be mapped"),
+        (["--variable", "nope"], "--variable 'nope' cannot be mapped"),
         (["--kind", "hysteresis"], "no hysteresis"),
         (["--x", "sigma"], "sigma"),
         (["--threshold-db", "inf"], "argument --threshold-db: must be a finite number"),
