@@ -288,7 +288,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         "no service needed. Without --x, --y or --hue the axes are chosen as the service "
         "chooses them (x the frequency axis, or the swept one for hysteresis; y and hue the "
         "first other varying axis with few values), and every other varying axis is fixed at "
-        "its first value and named in the title and on stdout.",
+        "its first value and named in the title and on stdout. A map also prints its bands: "
+        "the edges in x per value of y.",
     )
     p.add_argument(
         "results", help="results file (.nc), or the id of a finished study in the data dir"
@@ -300,7 +301,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="the figure: impact-effect is the bandgap map of Γ − Γ_lin",
     )
     p.add_argument(
-        "--out", default=None, help="the file to write, .png or .svg (default: KIND.png)"
+        "--out",
+        metavar="FILE",
+        default=None,
+        help="the file to write, .png or .svg (default: KIND.png)",
     )
     p.add_argument(
         "--sel",
@@ -310,19 +314,22 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
         help="a value of another axis, e.g. --sel theta=0.3; repeat for more "
         "(default: each at its first value)",
     )
-    p.add_argument("--x", default=None, help="x axis (default: the frequency axis)")
+    p.add_argument("--x", metavar="AXIS", default=None, help="x axis (default: the frequency axis)")
     p.add_argument(
         "--y",
+        metavar="AXIS",
         default=None,
         help="y axis of a map (default: the first other varying axis with few values)",
     )
     p.add_argument(
         "--hue",
+        metavar="AXIS",
         default=None,
         help="one transmittance curve per value of this axis (default as --y)",
     )
     p.add_argument(
         "--variable",
+        metavar="NAME",
         default=None,
         help="a map's variable: transmittance_db, transmittance_linear_db or "
         "impact_effect_db; any numeric variable for hysteresis (default: "
@@ -336,6 +343,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--threshold-db",
+        metavar="DB",
         type=finite_float,
         default=None,
         help="a map's band threshold (default: 0 dB, −1 dB for impact_effect_db)",
@@ -345,18 +353,21 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--jump-db",
+        metavar="DB",
         type=finite_float,
         default=1.0,
         help="hysteresis: a jump is a step between consecutive points over this",
     )
     p.add_argument(
         "--tol-db",
+        metavar="DB",
         type=finite_float,
         default=0.05,
         help="hysteresis: branches differ where they spread over this",
     )
     p.add_argument(
         "--data-dir",
+        metavar="DIR",
         default=None,
         help="data root of a study id (default $IMPACTCELL_DATA_DIR or ./data)",
     )
