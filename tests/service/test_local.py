@@ -18,6 +18,7 @@ from service.studies.shipped import ShippedStudyError
 from tests.service.helpers import comparable, tiny_study
 
 
+@pytest.mark.slow  # runs a (small) study
 def test_a_dict_runs_serially_into_the_data_dir_and_a_second_call_reads_it(
     tmp_path: Path,
 ) -> None:
@@ -41,6 +42,7 @@ def test_a_dict_runs_serially_into_the_data_dir_and_a_second_call_reads_it(
     xr.testing.assert_identical(again, ds)
 
 
+@pytest.mark.slow  # runs a (small) study
 def test_the_data_dir_comes_from_the_environment(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

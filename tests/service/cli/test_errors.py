@@ -406,6 +406,7 @@ def not_impactcell(tmp_path: Path) -> Iterator[str]:
         (["submit", "STUDY"], "POST /studies answered HTTP 501"),
     ],
 )
+@pytest.mark.slow  # a real HTTP server on the loopback
 def test_a_server_that_is_not_impactcell_is_one_line_without_its_page(
     args: list[str], answer: str, not_impactcell: str, study_file: Path
 ) -> None:

@@ -1,8 +1,8 @@
 """``impactcell plot``: the service's figures from a results file or a study id, no service.
 
-One small study is run in this process (serial, a few seconds) into a data dir; the service's
-app, opened on the same data dir (no job runner), draws its ``/plots`` from the same results
-file, so the two can be compared byte for byte (SVG output is reproducible).
+The study's results file is written from synthetic points (no point is simulated); the service's
+app, opened on the same data dir (no job runner), draws its ``/plots`` from that file, so the
+two can be compared byte for byte (SVG output is reproducible).
 """
 
 from __future__ import annotations
@@ -11,34 +11,31 @@ import json
 import typing
 from collections.abc import Iterator
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
-from fastapi.testclient import TestClient
 
 from service.analysis.figures import KINDS
-from service.api.app import create_app
 from service.api.routes import results as results_route
-from service.api.settings import Settings
 from service.cli.study import PLOT_KINDS
-from service.local import run
-from tests.service.helpers import run_cli, tiny_study
-
-# gap × theta × gamma_r, 24 points: a map with an axis fixed by default
-DEFINITION = tiny_study(name="plot", num=6)
-DEFINITION["grid"]["theta"] = [0.3, 0.5]
+from service.studies.dataset import results_from_records
+from tests.service.api.test_hysteresis import finish, sweep_results
+from tests.service.api.test_results import QUICK, Served, impact_record
+from tests.service.helpers import run_cli
 
 
 @pytest.fixture(scope="module")
-def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SimpleNamespace]:
-    """The study run into a data dir, and the service's app on that data dir."""
-    data = tmp_path_factory.mktemp("plot") / "data"
-    ds = run(DEFINITION, data_dir=data, serial=True)  # gap × theta × gamma_r, 24 points
-    with TestClient(create_app(Settings(data_dir=data), run_jobs=False)) as tc:
-        sid = tc.post("/studies", json=DEFINITION).json()["id"]
-        assert sid == ds.attrs["study_id"]  # the service finds the results file written here
-        yield SimpleNamespace(id=sid, data=data, tc=tc,
-                              file=data / "studies" / sid / "results.nc")  # fmt: skip
+def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """A finished gamma_r × gap × theta study (36 points: every third impacts, 2.5 dB more
+    attenuation than without stops), served by the app without its job runner."""
+    app = Served(tmp_path_factory.mktemp("plot"), QUICK)
+    try:
+        app.store.write_chunk(0, 36, [impact_record(i) for i in range(36)])
+        finish(app, results_from_records(app.study, app.store.collect_partial()[0]))
+        app.file = app.store.results_path  # type: ignore[attr-defined]
+        app.data = app.settings.data_dir  # type: ignore[attr-defined]
+        yield app
+    finally:
+        app.close()
 
 
 def test_the_kinds_are_those_of_the_figures_and_of_the_route() -> None:
@@ -53,7 +50,7 @@ def test_the_kinds_are_those_of_the_figures_and_of_the_route() -> None:
     ("kind", "options", "query"),
     [
         ("bandgap", [], {}),
-        ("transmittance", ["--sel", "theta=0.5"], {"theta": "0.5"}),
+        ("transmittance", ["--sel", "theta=0.3"], {"theta": "0.3"}),
         ("impact-effect", [], {}),
         ("effective-mass", ["--x", "gamma_r", "--sel", "gap=0.5"], {"x": "gamma_r", "gap": "0.5"}),
         ("bandgap", ["--variable", "transmittance_linear_db", "--threshold-db", "-3"],
@@ -61,7 +58,7 @@ def test_the_kinds_are_those_of_the_figures_and_of_the_route() -> None:
     ],
 )  # fmt: skip
 def test_the_same_figure_as_the_service_by_file_or_by_id(
-    study: SimpleNamespace, tmp_path: Path, kind: str, options: list[str], query: dict[str, str]
+    study: Served, tmp_path: Path, kind: str, options: list[str], query: dict[str, str]
 ) -> None:
     served = study.tc.get(f"/studies/{study.id}/plots/{kind}.svg", params=query)
     assert served.status_code == 200, served.text
@@ -82,26 +79,26 @@ def test_the_same_figure_as_the_service_by_file_or_by_id(
 
 
 def test_the_hysteresis_of_a_sweep_is_the_services(tmp_path: Path) -> None:
-    d = tiny_study(name="sweep", num=5, gaps=(0.3,))
-    d["sweep"] = {"axis": "gamma_r", "directions": ["up", "down"]}
-    ds = run(d, data_dir=tmp_path / "data", serial=True)
-    with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
-        sid = tc.post("/studies", json=d).json()["id"]
-        served = tc.get(f"/studies/{sid}/plots/hysteresis.svg", params={"tol_db": 0.01})
+    app = Served(tmp_path, {**QUICK, "grid": {**QUICK["grid"], "theta": 0.1}})
+    try:
+        finish(app, sweep_results())
+        served = app.get("/plots/hysteresis.svg", tol_db=0.01, gap=0.5)
+    finally:
+        app.close()
     assert served.status_code == 200, served.text
-    out = run_cli("plot", str(tmp_path / "data" / "studies" / sid / "results.nc"), "--kind",
-                  "hysteresis", "--tol-db", "0.01", "--out", str(tmp_path / "h.svg"))  # fmt: skip
+    results = str(app.store.results_path)
+    out = run_cli("plot", results, "--kind", "hysteresis", "--tol-db", "0.01", "--sel", "gap=0.5",
+                  "--out", str(tmp_path / "h.svg"))  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "h.svg").read_bytes() == served.content
     assert out.stdout.startswith(f"{tmp_path / 'h.svg'}  hysteresis over gamma_r")
-    assert ds.attrs["study_id"] == sid
-    bad = run_cli("plot", str(tmp_path / "data" / "studies" / sid / "results.nc"), "--kind",
-                  "hysteresis", "--jump-db", "0", "--out", str(tmp_path / "j.svg"))  # fmt: skip
+    bad = run_cli("plot", results, "--kind", "hysteresis", "--jump-db", "0",
+                  "--out", str(tmp_path / "j.svg"))  # fmt: skip
     assert bad.returncode == 2 and "--jump-db 0.0 must be positive" in bad.stderr
 
 
 def test_impact_effect_is_the_bandgap_map_of_the_impact_effect(
-    study: SimpleNamespace, tmp_path: Path
+    study: Served, tmp_path: Path
 ) -> None:
     a, b = tmp_path / "a.png", tmp_path / "b.png"
     assert (
@@ -115,23 +112,22 @@ def test_impact_effect_is_the_bandgap_map_of_the_impact_effect(
     assert served.status_code == 200 and served.headers["content-type"] == "image/png"
 
 
-def test_a_map_prints_the_band_edges_the_service_finds(
-    study: SimpleNamespace, tmp_path: Path
-) -> None:
+def test_a_map_prints_the_band_edges_the_service_finds(study: Served, tmp_path: Path) -> None:
     from service.cli.service import _spans
 
-    out = run_cli("plot", str(study.file), "--kind", "impact-effect", "--sel", "theta=0.5",
+    out = run_cli("plot", str(study.file), "--kind", "impact-effect", "--sel", "theta=0.3",
                   "--out", str(tmp_path / "e.png"))  # fmt: skip
     assert out.returncode == 0, out.stderr
     doc = study.tc.get(
-        f"/studies/{study.id}/bandgap", params={"variable": "impact_effect_db", "theta": 0.5}
+        f"/studies/{study.id}/bandgap", params={"variable": "impact_effect_db", "theta": 0.3}
     ).json()
     lines = out.stdout.splitlines()
     assert lines[1] == f"bands: {doc['threshold']['meaning']}"
     assert lines[2:] == [
         f"  gap {row['y']:g}: gamma_r in {_spans(row['bands'])}" for row in doc["edges"]
     ]
-    assert len(lines[2:]) == 2  # one line per gap
+    assert len(lines[2:]) == 3  # one line per gap
+    assert all(" in none" not in line for line in lines[2:])  # every gap has its bands
 
 
 @pytest.mark.parametrize(
@@ -139,7 +135,7 @@ def test_a_map_prints_the_band_edges_the_service_finds(
     [
         (["--out", "x.jpg"], "--out x.jpg: the file name must end in .png or .svg"),
         (["--sel", "theta"], "--sel 'theta' is not NAME=VALUE"),
-        (["--sel", "theta=0.4"], "theta=0.4 is not a coordinate value; values are 0.3, 0.5 "
+        (["--sel", "theta=0.4"], "theta=0.4 is not a coordinate value; values are 0.1, 0.3 "
          "(use --nearest)"),
         (["--variable", "nope"], "--variable 'nope' cannot be mapped"),
         (["--kind", "hysteresis"], "no hysteresis"),
@@ -148,7 +144,7 @@ def test_a_map_prints_the_band_edges_the_service_finds(
     ],
 )  # fmt: skip
 def test_bad_options_exit_2_naming_the_flag_and_write_nothing(
-    study: SimpleNamespace, tmp_path: Path, args: list[str], message: str
+    study: Served, tmp_path: Path, args: list[str], message: str
 ) -> None:
     target = [] if args[0] == "--out" else ["--out", str(tmp_path / "f.png")]
     out = run_cli("plot", str(study.file), *args, *target)
@@ -159,7 +155,7 @@ def test_bad_options_exit_2_naming_the_flag_and_write_nothing(
 
 
 def test_a_study_id_without_results_or_a_file_that_is_not_results(
-    study: SimpleNamespace, tmp_path: Path
+    study: Served, tmp_path: Path
 ) -> None:
     out = run_cli("plot", "0123456789abcdef0123", "--data-dir", str(study.data))
     assert out.returncode == 2

@@ -75,6 +75,7 @@ ADAPTIVE = {
 }  # fmt: skip
 
 
+@pytest.mark.slow  # runs a (small) adaptive study
 def test_an_adaptive_study_is_announced_with_the_most_it_may_take(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
