@@ -34,6 +34,7 @@ __all__ = [
     "ClientError",
     "Conflict",
     "InvalidRequest",
+    "NotAService",
     "NotFound",
     "PayloadTooLarge",
     "ServerError",
@@ -75,6 +76,11 @@ class PayloadTooLarge(ClientError):
 
 class ServerError(ClientError):
     """5xx: the service failed."""
+
+
+class NotAService(ClientError):
+    """The answer is not one of an impactcell service (an HTML page, another server's answer):
+    the URL is not the service's, or a proxy in front of it answered."""
 
 
 class StudyFailed(Exception):
@@ -161,7 +167,18 @@ class Client:
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         r = self._http.request(method, path, **kwargs)
         _raise_for(r)
+        _check_not_a_page(r)
         return r
+
+    def _json(self, method: str, path: str, **kwargs: Any) -> Any:
+        """The JSON body of an answer; :class:`NotAService` when it is none (another server)."""
+        r = self._request(method, path, **kwargs)
+        if _content_type(r) == "application/json":
+            try:
+                return r.json()
+            except ValueError:
+                pass
+        raise _not_a_service(r)
 
     def _download(
         self,
@@ -177,6 +194,7 @@ class Client:
                 if r.status_code >= 400:
                     r.read()
                     _raise_for(r)
+                _check_not_a_page(r)
                 if headers is not None:
                     headers.update(r.headers)
                 for block in r.iter_bytes(1 << 20):
@@ -216,14 +234,13 @@ class Client:
                     parsed = None
                 _check_finite(parsed)
             body = text.encode("utf-8")
-        r = self._request(
+        return self._json(
             "POST", "/studies", content=body, headers={"Content-Type": kind}, params=params
         )
-        return r.json()
 
     def get(self, study_id: str) -> dict[str, Any]:
         """The study's record (status, progress, timings, failures)."""
-        return self._request("GET", f"/studies/{study_id}").json()
+        return self._json("GET", f"/studies/{study_id}")
 
     def list(
         self,
@@ -241,7 +258,7 @@ class Client:
             params["status"] = status
         if name:
             params["name"] = name
-        body = self._request("GET", "/studies", params=params).json()
+        body = self._json("GET", "/studies", params=params)
         items = body["items"]
         return StudyPage(items, int(body.get("total", len(items))), int(body.get("limit", limit)),
                          int(body.get("offset", offset)))  # fmt: skip
@@ -249,7 +266,7 @@ class Client:
     def cancel(self, study_id: str) -> dict[str, Any]:
         """Cancel a queued or running study (``POST /studies/{id}/cancel``): running work
         stops, finished chunks are kept; ``resume`` continues it."""
-        return self._request("POST", f"/studies/{study_id}/cancel").json()
+        return self._json("POST", f"/studies/{study_id}/cancel")
 
     def delete(self, study_id: str) -> None:
         """Remove a study and its files (``DELETE /studies/{id}``); it cannot be resumed."""
@@ -257,7 +274,7 @@ class Client:
 
     def resume(self, study_id: str) -> dict[str, Any]:
         """Queue a cancelled or failed study again."""
-        return self._request("POST", f"/studies/{study_id}/resume").json()
+        return self._json("POST", f"/studies/{study_id}/resume")
 
     def wait(
         self,
@@ -311,7 +328,7 @@ class Client:
         an :class:`InvalidRequest` saying what to select.
         """
         params = {"variable": variable, "nearest": str(nearest).lower(), **_params(sel)}
-        out = self._request("GET", f"/studies/{study_id}/data", params=params).json()
+        out = self._json("GET", f"/studies/{study_id}/data", params=params)
         coords = {k: np.asarray(v) for k, v in out["coords"].items()}
         values = _typed(out["values"], out.get("dtype", "float"))
         da = xr.DataArray(values, dims=out["dims"], coords={d: coords[d] for d in out["dims"]},
@@ -369,7 +386,7 @@ class Client:
         it names its variable, axes (units, long names, values), threshold and the slice it
         was taken at, with the map and the band edges."""
         params = self._bandgap_params(x, y, threshold_db, nearest, variable, sel)
-        return self._request("GET", f"/studies/{study_id}/bandgap", params=params).json()
+        return self._json("GET", f"/studies/{study_id}/bandgap", params=params)
 
     def bandgap_csv(
         self,
@@ -421,7 +438,7 @@ class Client:
         is an :class:`InvalidRequest`.
         """
         params = self._hysteresis_params(x, variable, jump_db, tol_db, nearest, sel)
-        return self._request("GET", f"/studies/{study_id}/hysteresis", params=params).json()
+        return self._json("GET", f"/studies/{study_id}/hysteresis", params=params)
 
     def hysteresis_csv(
         self,
@@ -495,15 +512,15 @@ class Client:
 
     def health(self) -> dict[str, Any]:
         """``GET /health``."""
-        return self._request("GET", "/health").json()
+        return self._json("GET", "/health")
 
     def regressions(self) -> list[dict[str, Any]]:
         """Nightly regression runs, newest first."""
-        return self._request("GET", "/regressions").json()["items"]
+        return self._json("GET", "/regressions")["items"]
 
     def regression(self, reg_id: int) -> dict[str, Any]:
         """One nightly regression run, with its report once it has finished."""
-        return self._request("GET", f"/regressions/{int(reg_id)}").json()
+        return self._json("GET", f"/regressions/{int(reg_id)}")
 
     def run_nightly(self) -> dict[str, Any]:
         """Start the nightly suite on the service, through its own job queue; returns the run's
@@ -511,13 +528,36 @@ class Client:
 
         Raises :class:`Conflict` while a run is in progress.
         """
-        return self._request("POST", "/regressions").json()
+        return self._json("POST", "/regressions")
 
     def record_regression(self, report: Mapping[str, Any], markdown: str = "") -> dict[str, Any]:
         """Catalogue the report of a suite run made elsewhere (``impactcell nightly --url``);
         returns its record, listed by ``regressions()`` like the service's own runs."""
         body = {"report": dict(report), "markdown": markdown}
-        return self._request("POST", "/regressions/reports", json=body).json()
+        return self._json("POST", "/regressions/reports", json=body)
+
+
+def _content_type(r: httpx.Response) -> str:
+    """The media type of an answer, without parameters (``text/csv``)."""
+    return r.headers.get("content-type", "").split(";")[0].strip().lower()
+
+
+def _check_not_a_page(r: httpx.Response) -> None:
+    """:class:`NotAService` for a web page: the API answers JSON, CSV, images or NetCDF."""
+    if _content_type(r) in ("text/html", "application/xhtml+xml"):
+        raise _not_a_service(r)
+
+
+def _not_a_service(r: httpx.Response) -> NotAService:
+    """One line for an answer that is not the service's, never its body (an HTML page)."""
+    u = r.request.url
+    kind = r.headers.get("content-type", "").split(";")[0].strip() or "no content type"
+    return NotAService(
+        r.status_code,
+        f"{u.scheme}://{u.netloc.decode('ascii', 'replace')} is not an impactcell service: "
+        f"{r.request.method} {u.path} answered HTTP {r.status_code} {r.reason_phrase} "
+        f"with {kind}".rstrip(),
+    )
 
 
 def _raise_for(r: httpx.Response) -> None:
@@ -525,11 +565,14 @@ def _raise_for(r: httpx.Response) -> None:
     if r.status_code < 400:
         return
     try:
-        body = r.json()
-        message = str(body.get("detail", r.text))
-        problems = body.get("problems")
-    except (ValueError, AttributeError):
-        message, problems = r.text or r.reason_phrase, None
+        body = r.json() if _content_type(r) == "application/json" else None
+    except ValueError:
+        body = None
+    if not isinstance(body, dict) or "detail" not in body:
+        # Every error of the service is JSON with a detail: this answer is another server's.
+        raise _not_a_service(r)
+    message = body["detail"] if isinstance(body["detail"], str) else json.dumps(body["detail"])
+    problems = body.get("problems")
     fallback = ServerError if r.status_code >= 500 else ClientError
     cls = _BY_STATUS.get(r.status_code, fallback)
     raise cls(r.status_code, message, problems)

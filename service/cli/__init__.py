@@ -14,7 +14,7 @@ import os
 import sys
 import threading
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from service.cli import db, nightly, points, service, simulate, study
 from service.cli.common import Parser, error_exit_status
@@ -25,10 +25,30 @@ __all__ = ["build_parser", "entry", "main"]
 _GROUPS = (simulate, study, service, nightly, points, db)
 
 
+class _Version(argparse.Action):
+    """``--version``: the package's version and the solver's (the one in every study id)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        kwargs.update(nargs=0, default=argparse.SUPPRESS)
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any) -> NoReturn:
+        from service.studies.provenance import package_version
+        from worker.solvers.settings import SOLVER_VERSION
+
+        print(f"impactcell {package_version()} (solver version {SOLVER_VERSION})")
+        parser.exit(0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand."""
     parser = Parser(
         prog="impactcell", description="Impacting beam-in-mass metamaterial cell studies."
+    )
+    parser.add_argument(
+        "--version",
+        action=_Version,
+        help="print impactcell's version and the solver version, then exit",
     )
     parser.add_argument(
         "--traceback",

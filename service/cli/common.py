@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import math
 import socket
 import sys
 from collections.abc import Mapping
@@ -29,6 +30,7 @@ __all__ = [
     "check_port_free",
     "check_service_url",
     "error_exit_status",
+    "finite_float",
     "positive_int",
     "probe_scheduler",
     "probe_service",
@@ -83,6 +85,17 @@ def positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number (argparse names the flag before the message)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
     return value
 
 
@@ -233,6 +246,9 @@ def error_exit_status(exc: BaseException) -> tuple[int, str]:
     """The exit status and one-line message for an error that ended a command."""
     if isinstance(exc, Failure):
         return EXIT_FAILURE, str(exc)
+    client = sys.modules.get("service.client")  # only when a command used it
+    if client is not None and isinstance(exc, client.ClientError):
+        return _service_error(exc)
     httpx = sys.modules.get("httpx")  # only when a command used it: no import for the others
     if httpx is not None:
         if isinstance(exc, httpx.UnsupportedProtocol | httpx.InvalidURL):
@@ -246,6 +262,20 @@ def error_exit_status(exc: BaseException) -> tuple[int, str]:
         return EXIT_FAILURE, f"{exc.strerror}{where}"
     text = str(exc).strip().splitlines()
     return EXIT_FAILURE, f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
+def _service_error(exc: Any) -> tuple[int, str]:
+    """An error answer of the service: exit 1 for its own failures (5xx), else 2; its message
+    with the problems it lists, each once (the service's message usually lists them already)."""
+    # One problem per line, unindented: the caller indents the lines after the first.
+    message = "\n".join(line.strip() for line in str(exc.message).strip().splitlines())
+    extra = [
+        f"{p.get('path')}: {p.get('message')}"
+        for p in exc.problems or []
+        if str(p.get("message")) not in message
+    ]
+    code = EXIT_FAILURE if exc.status >= 500 else EXIT_USAGE
+    return code, "\n".join([message, *extra])
 
 
 def _base_url(exc: Any) -> str:

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from service.cli.common import finite_float
 from service.cli.db import _database_flags, _run
 
 __all__ = ["add_commands"]
@@ -22,12 +23,24 @@ PARAMS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "xi_b", "g1", "g2", "gap
 
 
 def _open(settings: Any) -> tuple[Any, Any]:
+    """The catalogue and its point store; ValueError (exit 2) when the default SQLite catalogue
+    is not there: these commands only read and prune, so a mistyped --data-dir creates
+    nothing."""
     from service.api.catalogue import Catalogue
     from service.api.points import SqlPointStore
+    from service.cli.db import _sqlite_file_missing
 
-    if not settings.database_url:  # the default SQLite file lives in the data dir
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
-    cat = Catalogue(settings.catalogue_url())
+    url = settings.catalogue_url()
+    where = "--database-url" if settings.database_url else "--data-dir"
+    if not settings.database_url and not settings.data_dir.is_dir():
+        raise ValueError(f"--data-dir {settings.data_dir}: no such folder")
+    missing = _sqlite_file_missing(url)
+    if missing:
+        raise ValueError(
+            f"{where}: no catalogue database at {missing}; `impactcell run` and "
+            "`impactcell serve` create it"
+        )
+    cat = Catalogue(url)
     return cat, SqlPointStore(cat.engine)
 
 
@@ -111,15 +124,6 @@ def _cmd_gc(args: argparse.Namespace) -> int:
     return _run(args, action)
 
 
-def _float(text: str) -> float:
-    import math
-
-    v = float(text)
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return v
-
-
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``points`` and ``gc``."""
     p = sub.add_parser(
@@ -132,11 +136,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     for name in PARAMS:
         flag = "--" + name.replace("_", "-")
         what = "g1 = g2 = gap" if name == "gap" else name
-        p.add_argument(flag, dest=name, type=_float, default=None, metavar="V",
+        p.add_argument(flag, dest=name, type=finite_float, default=None, metavar="V",
                        help=f"{what} equal to V (default: any)")  # fmt: skip
-        p.add_argument(f"{flag}-min", dest=f"{name}_min", type=_float, default=None,
+        p.add_argument(f"{flag}-min", dest=f"{name}_min", type=finite_float, default=None,
                        metavar="V", help=f"{what} >= V (default: no bound)")  # fmt: skip
-        p.add_argument(f"{flag}-max", dest=f"{name}_max", type=_float, default=None,
+        p.add_argument(f"{flag}-max", dest=f"{name}_max", type=finite_float, default=None,
                        metavar="V", help=f"{what} <= V (default: no bound)")  # fmt: skip
     p.add_argument("--modes", type=int, default=None, help="beam modes (default: any)")
     p.add_argument("--coupling", choices=("paper", "full"), default=None,
@@ -157,7 +161,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     _database_flags(p)
     p.set_defaults(func=_cmd_points)
 
-    p = sub.add_parser("gc", help="remove stored points that no study uses")
+    p = sub.add_parser(
+        "gc",
+        help="remove stored points that no study uses",
+        description="Remove from the point store of the catalogue database the points that no "
+        "study in it uses any more, and the links of studies that no longer exist. A data dir "
+        "without a catalogue is an error; nothing is created.",
+    )
     p.add_argument("--dry-run", action="store_true", help="only count what would go")
     _database_flags(p)
     p.set_defaults(func=_cmd_gc)

@@ -14,6 +14,7 @@ from service.api.settings import DEFAULT_URL
 from service.cli.common import (
     Failure,
     check_port_free,
+    error_exit_status,
     positive_int,
     probe_scheduler,
     probe_service,
@@ -117,11 +118,14 @@ def _cmd_submit(args: argparse.Namespace) -> int:
     with _client(args) as c:
         try:
             rec = c.submit(definition)
-            print(f"{rec['id']}  {rec['name']}  {rec['status']}  {rec['points_total']:,} points")
+            # An adaptive study's total is the most it may compute: it stops where it has enough.
+            adaptive = isinstance(definition, dict) and definition.get("adaptive") is not None
+            total = f"{'up to ' if adaptive else ''}{rec['points_total']:,} points"
+            print(f"{rec['id']}  {rec['name']}  {rec['status']}  {total}")
             if args.wait:
                 rec = _wait(c, rec["id"], progress=not args.no_progress)
                 print(f"{rec['id']}  finished in {rec['wall_s'] or 0:.1f} s, "
-                      f"{rec['points_failed']} failed")  # fmt: skip
+                      f"{rec['points_total']:,} points, {rec['points_failed']} failed")  # fmt: skip
         except StudyFailed as exc:
             raise Failure(str(exc)) from None
         except ClientError as exc:
@@ -139,13 +143,11 @@ def _readable(path: Path) -> None:
 
 
 def _print_problems(exc: Any) -> int:
-    """The service's error answer on stderr; exit 1 for its own failures (5xx), else 2."""
-    from service.client import ServerError
-
-    print(f"impactcell: error: {exc.message}", file=sys.stderr)
-    for p in exc.problems or []:
-        print(f"  {p.get('path')}: {p.get('message')}", file=sys.stderr)
-    return 1 if isinstance(exc, ServerError) else 2
+    """The service's error answer on stderr, each problem once; exit 1 for its own failures
+    (5xx), else 2."""
+    code, message = error_exit_status(exc)
+    print(f"impactcell: error: {message}".replace("\n", "\n  "), file=sys.stderr)
+    return code
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
@@ -284,7 +286,14 @@ def _demo_selection(ds: Any, x: str, y: str) -> dict[str, float]:
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``serve``, ``submit``, ``status`` and ``demo``."""
-    p = sub.add_parser("serve", help="run the REST service (uvicorn)")
+    p = sub.add_parser(
+        "serve",
+        help="run the REST service (uvicorn)",
+        description="Run the REST service and its web page: studies are submitted, run on the "
+        "dask cluster (an embedded LocalCluster unless --scheduler), catalogued in the "
+        "database, and their results served as NetCDF, JSON, CSV and figures. Settings come "
+        "from these flags over IMPACTCELL_* variables (docs/service.md).",
+    )
     p.add_argument("--host", default=None, help="bind address (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=None, help="port (default 8000)")
     p.add_argument("--data-dir", default=None, help="data folder (default ./data)")
@@ -313,7 +322,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_serve)  # fmt: skip
 
     url_help = f"service URL (default $IMPACTCELL_URL or {DEFAULT_URL})"
-    p = sub.add_parser("submit", help="submit a study file to the service")
+    p = sub.add_parser(
+        "submit",
+        help="submit a study file to the service",
+        description="Submit a study file (or a shipped study) to a running service and print "
+        "its id; with --wait, follow it until it finishes. An identical study submitted again "
+        "is the same study. `impactcell run` runs a study without a service.",
+    )
     p.add_argument(
         "study", help="study file (.yaml, .yml or .json) or a shipped study's name (quick)"
     )
@@ -323,7 +338,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar with --wait")
     p.set_defaults(func=_cmd_submit)
 
-    p = sub.add_parser("status", help="status of one study, or the latest studies")
+    p = sub.add_parser(
+        "status",
+        help="status of one study, or the latest studies",
+        description="The status and progress of one study of a running service (with its "
+        "timings, outcome counts and a sample of failed points), or of its latest studies.",
+    )
     p.add_argument("id", nargs="?", default=None, help="study id (default: list studies)")
     p.add_argument("--url", default=None, help=url_help)
     p.add_argument("--token", default=None, help="bearer token (default $IMPACTCELL_API_TOKEN)")
@@ -332,7 +352,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_status)
 
     p = sub.add_parser(
-        "demo", help="start the service in-process, run the Figure-5 study, write the bandgap map"
+        "demo",
+        help="start the service in-process, run the Figure-5 study, write the bandgap map",
+        description="Start the service in this process on a free loopback port, submit the "
+        "demo study through the Python client, and write to --out its NetCDF dataset, the "
+        "bandgap and impact-effect maps (PNG and JSON with the band edges) and the "
+        "transmittance curves; print the bands per gap.",
     )
     p.add_argument("--out", default="impactcell-demo", help="output folder")
     p.add_argument(

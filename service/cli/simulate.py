@@ -215,13 +215,27 @@ def _cmd_warmup(args: argparse.Namespace) -> int:
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Add ``point``, ``spectrum`` and ``warmup``."""
-    p = sub.add_parser("point", help="simulate one point")
+    p = sub.add_parser(
+        "point",
+        help="simulate one point",
+        description="Simulate one point of the cell in this process and print its "
+        "transmittance Γ, the same cell without stops (Γ_lin) and the impact effect, the "
+        "effective mass, how it ended (linear, periodic, irregular, unsettled or failed) and "
+        "its cost. Exit status 1 when the point failed.",
+    )
     _cell_arguments(p)
     p.add_argument("--gamma-r", type=float, default=1.0, help="excitation frequency γ_r")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.set_defaults(func=_cmd_point)
 
-    p = sub.add_parser("spectrum", help="transmittance over a γ_r range")
+    p = sub.add_parser(
+        "spectrum",
+        help="transmittance over a γ_r range",
+        description="Simulate the cell at evenly spaced frequencies γ_r in this process and "
+        "print one row per frequency: Γ, its standard error, θ_eff, the outcome, the response "
+        "period, the Floquet multiplier and the time. A study (`impactcell run`) does the same "
+        "on a cluster, for grids of any axes.",
+    )
     _cell_arguments(p)
     p.add_argument("--gamma-r-start", type=float, default=0.2, help="first γ_r")
     p.add_argument("--gamma-r-stop", type=float, default=6.0, help="last γ_r")

@@ -52,6 +52,7 @@ __all__ = [
     "CHUNK_FIELDS",
     "DAMAGED_DIR",
     "DEFAULT_DATA_DIR",
+    "RESULTS_FILE",
     "STUDY_ID",
     "MissingPoints",
     "PartialState",
@@ -63,6 +64,7 @@ __all__ = [
     "data_root",
     "is_study_id",
     "iter_chunk_ranges",
+    "study_folder",
     "with_transient_flag",
 ]
 
@@ -71,7 +73,9 @@ log = logging.getLogger("impactcell.store")
 DEFAULT_DATA_DIR = Path("data")
 #: Where a study's files that failed their check are kept (inside the study's folder).
 DAMAGED_DIR = "damaged"
-_RESULTS_SUM = "results.nc.sha256"
+#: The name of a finished study's collated results file, in its folder (:func:`study_folder`).
+RESULTS_FILE = "results.nc"
+_RESULTS_SUM = RESULTS_FILE + ".sha256"
 #: A study id: a hex content hash (the only text a study's file paths are built from).
 STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
 _CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
@@ -93,6 +97,12 @@ def is_study_id(text: str) -> bool:
 def data_root(out: str | os.PathLike[str] | None = None) -> Path:
     """The data root: ``out``, else ``./data`` (callers pass ``Settings.data_dir``)."""
     return DEFAULT_DATA_DIR if out is None else Path(out)
+
+
+def study_folder(root: str | os.PathLike[str] | None, study_id: str) -> Path:
+    """The folder of a study's files under a data root (``results.nc`` is there once it
+    finishes)."""
+    return data_root(root) / "studies" / study_id
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
@@ -290,7 +300,7 @@ class StudyStore:
         self.id = study.id
         if not is_study_id(self.id):
             raise ValueError(f"study id must be a hex digest, got {self.id!r}")
-        self.folder = data_root(root) / "studies" / self.id
+        self.folder = study_folder(root, self.id)
         self.chunk_dir = self.folder / "chunks"
         #: The fields its chunk files keep (a sweep's also say where each point started).
         self.fields = CHUNK_FIELDS + (LINE_FIELDS if study.sweep is not None else ())
@@ -302,7 +312,7 @@ class StudyStore:
     @property
     def results_path(self) -> Path:
         """Where the collated NetCDF file goes."""
-        return self.folder / "results.nc"
+        return self.folder / RESULTS_FILE
 
     @property
     def definition_path(self) -> Path:
@@ -627,7 +637,7 @@ class StudyStore:
         return self.results_path
 
     def _write_sum(self, digest: str) -> None:
-        text = f"{digest}  results.nc\n"
+        text = f"{digest}  {RESULTS_FILE}\n"
         atomic_write(self.results_sum_path, lambda p: p.write_text(text, encoding="ascii"))
 
     def _recorded_sum(self) -> str | None:

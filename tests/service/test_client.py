@@ -259,3 +259,26 @@ def test_hysteresis_sends_only_what_is_given_and_plot_names_the_kind() -> None:
     )
     with pytest.raises(InvalidRequest, match="no sweep or several starts"):
         c.hysteresis("abc12345")
+
+
+def test_an_answer_that_is_not_the_services_is_not_a_service_error() -> None:
+    from service.client import NotAService
+
+    page = httpx.Response(200, html="<html><body>router login</body></html>")
+    svc = Recorder({
+        ("GET", "/studies/abc12345"): page,
+        ("GET", "/studies"): httpx.Response(404, json={"error": "no such thing"}),
+        ("GET", "/studies/abc12345/data"): httpx.Response(502, html="<h1>Bad gateway</h1>"),
+    })  # fmt: skip
+    c = svc.client()
+    with pytest.raises(NotAService) as err:
+        c.get("abc12345")
+    assert str(err.value.message) == (
+        "http://mock is not an impactcell service: GET /studies/abc12345 answered HTTP 200 OK "
+        "with text/html"
+    )
+    with pytest.raises(NotAService, match="HTTP 404 Not Found with application/json"):
+        c.list()  # JSON, but not the service's errors (they have a detail)
+    with pytest.raises(NotAService, match="HTTP 502 Bad Gateway with text/html") as err:
+        c.data_csv("abc12345")
+    assert err.value.status == 502 and "Bad gateway" not in str(err.value)

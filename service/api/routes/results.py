@@ -14,16 +14,10 @@ import xarray as xr
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import FileResponse, Response
 
+from service.analysis import figures
 from service.analysis.bands import bandgap_csv, bandgap_json, bandgap_map
-from service.analysis.hysteresis import fixed_of, hysteresis_csv, hysteresis_json, hysteresis_map
-from service.analysis.selection import (
-    AnalysisError,
-    View,
-    default_view,
-    select,
-    slice_csv,
-    slice_json,
-)
+from service.analysis.hysteresis import hysteresis_csv, hysteresis_json, hysteresis_map
+from service.analysis.selection import AnalysisError, default_view, select, slice_csv, slice_json
 from service.api.catalogue import Catalogue
 from service.api.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.api.schemas import ErrorOut
@@ -31,7 +25,6 @@ from service.studies.chunks import PartialState, StudyStore, atomic_write
 from service.studies.dataset import (
     encoding,
     json_text,
-    jsonable,
     open_results,
     results_from_records,
     write_netcdf,
@@ -64,15 +57,11 @@ _REFERENCE_DOC = (
 
 
 def map_variable(variable: str, reference: str) -> str:
-    """The variable a map shows: ``reference=linear`` is the impact effect Γ − Γ_lin."""
-    if reference == "none":
-        return variable
-    if variable not in ("transmittance_db", "impact_effect_db"):
-        raise HTTPException(
-            422, f"reference=linear maps Γ − Γ_lin (impact_effect_db); it cannot be combined "
-            f"with variable={variable}"
-        )  # fmt: skip
-    return "impact_effect_db"
+    """The variable a map shows (:func:`service.analysis.figures.map_variable`; 422 if none)."""
+    try:
+        return figures.map_variable(variable, reference)
+    except AnalysisError as exc:
+        raise HTTPException(422, str(exc)) from None
 
 
 class _Cache:
@@ -426,6 +415,12 @@ def _hysteresis(
                            tol_db=tol_db)  # fmt: skip
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
+    _check_hysteresis(study_id, h)
+    return h
+
+
+def _check_hysteresis(study_id: str, h: xr.Dataset) -> None:
+    """422 when a hysteresis map is over :data:`MAX_SLICE_VALUES`, saying how to keep fewer."""
     size = h.sizes["branch"] * h.sizes[h.attrs["x"]]
     if size > MAX_SLICE_VALUES:
         raise HTTPException(
@@ -435,7 +430,6 @@ def _hysteresis(
             f"{MAX_SLICE_VALUES:,}; select initial=… or direction=… to keep fewer branches, or "
             f"download everything as NetCDF from /studies/{study_id}/dataset",
         )
-    return h
 
 
 @router.get(
@@ -491,7 +485,7 @@ def hysteresis(
 def plot(
     request: Request,
     study_id: StudyId,
-    kind: Literal["transmittance", "bandgap", "effective-mass", "hysteresis"],
+    kind: Literal["transmittance", "bandgap", "impact-effect", "effective-mass", "hysteresis"],
     fmt: Literal["png", "svg"],
     settings: SettingsDep,
     catalogue: CatalogueDep,
@@ -506,7 +500,8 @@ def plot(
     tol_db: Annotated[float, Query(ge=0, le=1000, description=_TOL_DOC)] = 0.05,
 ) -> Response:
     """A figure, PNG or SVG: transmittance (Fig. 5a style, with the linear reference Γ_lin
-    dashed), bandgap map (of ``variable``, as in ``/bandgap``), effective mass (Fig. 6: θ_eff,
+    dashed), bandgap map (of ``variable``, as in ``/bandgap``), impact-effect (the bandgap map
+    of ``impact_effect_db``, Γ − Γ_lin, threshold −1 dB), effective mass (Fig. 6: θ_eff,
     the first harmonic, with the phase-portrait ratio θ_ps of ``theta_eff_slope`` dashed and
     named as such), or hysteresis (as ``/hysteresis``: up and down curves in two colours with
     markers pointing the way, jumps dashed, where they differ shaded; 422 without a sweep or
@@ -516,53 +511,20 @@ def plot(
     (transmittance) or y (bandgap) to the first other varying axis with few values, and every
     other varying axis is fixed at its first value, named in the title and the
     ``X-Impactcell-Fixed`` header (JSON)."""
-    from service.analysis import plots
-
     variable = map_variable(variable, reference)
     ds, _path = load_dataset(settings, catalogue, study_id)
-    sel = coords_of(request)
-    if kind == "hysteresis":
-        h = _hysteresis(study_id, ds, sel, x, variable, jump_db, tol_db, nearest)
-        image = plots.hysteresis_png(h, fmt=fmt)
-        v = View(str(h.attrs["x"]), None, {}, fixed_of(h))
-    else:
-        image, v = _figure(plots, kind, ds, sel, x, y, hue, threshold_db, nearest, variable, fmt)
-    fixed = json_text({"x": v.x, "y": v.y, "fixed": {k: jsonable(f) for k, f in v.fixed.items()}})
-    return Response(image, media_type=plots.FORMATS[fmt], headers={"X-Impactcell-Fixed": fixed})
-
-
-def _figure(
-    plots: Any,
-    kind: str,
-    ds: xr.Dataset,
-    sel: dict[str, str],
-    x: str | None,
-    y: str | None,
-    hue: str | None,
-    threshold_db: float | None,
-    nearest: bool,
-    variable: str,
-    fmt: Literal["png", "svg"],
-) -> tuple[bytes, View]:
-    """A transmittance, bandgap or effective-mass figure and the view it shows (422 for an
-    AnalysisError)."""
     try:
-        if kind == "transmittance":
-            v = default_view(ds, "transmittance_db", x, hue, sel)
-            image = plots.transmittance_png(ds, v.sel, x=v.x, hue=v.y, nearest=nearest,
-                                            fixed=v.fixed, fmt=fmt)  # fmt: skip
-        elif kind == "effective-mass":
-            v = default_view(ds, "theta_eff", x, None, sel, auto_y=False)
-            image = plots.effective_mass_png(ds, v.sel, x=v.x, nearest=nearest, fixed=v.fixed,
-                                             fmt=fmt)  # fmt: skip
-        else:
-            v = default_view(ds, "transmittance_db", x, y, sel)
-            m = bandgap_map(ds, v.x, v.y, threshold_db=threshold_db, sel=v.sel, nearest=nearest,
-                            variable=variable)  # fmt: skip
-            image = plots.bandgap_png(m, fixed=v.fixed, fmt=fmt)
+        image, v, _ = figures.figure(
+            ds, kind, fmt, coords_of(request), x=x, y=y, hue=hue, threshold_db=threshold_db,
+            nearest=nearest, variable=variable, jump_db=jump_db, tol_db=tol_db,
+            check=lambda h: _check_hysteresis(study_id, h),
+        )  # fmt: skip
     except AnalysisError as exc:
         raise HTTPException(422, str(exc)) from None
-    return image, v
+    from service.analysis.plots import FORMATS  # matplotlib: loaded by the first figure
+
+    return Response(image, media_type=FORMATS[fmt],
+                    headers={"X-Impactcell-Fixed": json_text(figures.describe(v))})  # fmt: skip
 
 
 __all__ = [

@@ -147,7 +147,7 @@ def timeseries(
 def _answer(study_id: str, coords: dict[str, float], periods: int, format: str,  # noqa: A002
             r: Any) -> Response:  # fmt: skip
     """The response for a recomputed point (JSON, or NetCDF bytes)."""
-    hist = r.history or {}
+    hist = _distinct_times(r.history or {})
     result = {k: jsonable(v) for k, v in r.as_dict().items()}
     if format == "netcdf":
         return _history_netcdf(study_id, coords, hist, result)
@@ -160,26 +160,49 @@ def _answer(study_id: str, coords: dict[str, float], periods: int, format: str, 
 
 
 def _point_index(study: Study, sel: dict[str, str], nearest: bool) -> tuple[int, dict[str, float]]:
-    """Flat index and coordinates of the grid point that ``sel`` picks (every varying axis)."""
-    dims = study.dims()
-    unknown = sorted(set(sel) - set(dims))
+    """Flat index and coordinates of the grid point that ``sel`` picks (every varying axis).
+
+    An axis with one value (θ fixed by the study) may be given too, and must match it as in
+    ``/data`` (:func:`service.analysis.selection.coordinate_index`)."""
+    axes = study.axes()
+    unknown = sorted(set(sel) - set(axes))
     if unknown:
         raise AnalysisError(
-            f"unknown coordinate {unknown[0]!r}; the study's axes are {', '.join(dims)}"
+            f"unknown coordinate {unknown[0]!r}; the study's axes are {', '.join(axes)}"
         )
+    dims = study.dims()
     idx: list[int] = []
-    for name, values in dims.items():
+    for name, values in axes.items():
         if name in sel:
-            idx.append(coordinate_index(name, values, sel[name], nearest))
+            i = coordinate_index(name, values, sel[name], nearest)
         elif values.size == 1:
-            idx.append(0)
+            i = 0
         else:
             raise AnalysisError(
                 f"{name} must be given to pick one point; values are {values_text(values)}"
             )
+        if name in dims:
+            idx.append(i)
     coords = {name: float(v[i]) for (name, v), i in zip(dims.items(), idx, strict=True)}
     flat = int(np.ravel_multi_index(tuple(idx), tuple(v.size for v in dims.values())))
     return flat, coords
+
+
+def _distinct_times(hist: dict[str, Any]) -> dict[str, Any]:
+    """The histories with one sample per time: ``time`` strictly increasing.
+
+    The event method records an impact twice at the same time, the state just before it (the
+    end of a smooth piece) and just after (kind 1/2, its impulse applied); only the velocities
+    differ. The sample after is kept: the state from the impact on, as every later sample;
+    the impulse and the event log say how large the jump was.
+    """
+    tau = np.asarray(hist.get("tau", ()), dtype=np.float64)
+    if tau.size < 2:
+        return hist
+    keep = np.append(tau[1:] > tau[:-1], True)
+    if keep.all():
+        return hist
+    return {k: v if k == "events" else np.asarray(v)[keep] for k, v in hist.items()}
 
 
 def _event_columns(events: np.ndarray) -> dict[str, np.ndarray]:

@@ -104,3 +104,35 @@ def test_a_point_of_a_sweep_study_starts_from_the_initial_state_asked_for(tmp_pa
         assert lin["result"]["transmittance_db"] - rest["transmittance_db"] > 2.0
         bad = tc.get(f"/studies/{sid}/timeseries", params={**q, "initial": "random-3"})
         assert bad.status_code == 422 and "rest, linear" in bad.json()["detail"]
+
+
+def test_a_fixed_axis_is_accepted_as_by_data_and_time_strictly_increases(tmp_path: Path) -> None:
+    import numpy as np
+    import xarray as xr
+
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
+        sid = tc.post("/studies", json=tiny_study()).json()["id"]  # θ = 0.3 fixed
+        q = {"gamma_r": 1.0, "gap": 0.1, "nearest": "true", "periods": 3}
+        plain = tc.get(f"/studies/{sid}/timeseries", params=q)
+        with_theta = tc.get(f"/studies/{sid}/timeseries", params={**q, "theta": 0.3})
+        assert plain.status_code == with_theta.status_code == 200, with_theta.text
+        assert with_theta.json()["series"] == plain.json()["series"]
+        wrong = tc.get(f"/studies/{sid}/timeseries", params={**q, "theta": 0.4, "nearest": False})
+        assert wrong.status_code == 422
+        assert "theta=0.4 is not a coordinate value; values are 0.3" in wrong.json()["detail"]
+        unknown = tc.get(f"/studies/{sid}/timeseries", params={**q, "tehta": 0.3})
+        assert unknown.status_code == 422 and "'tehta'" in unknown.json()["detail"]
+        assert "theta" in unknown.json()["detail"]  # the axes listed include the fixed ones
+
+        nc = tc.get(f"/studies/{sid}/timeseries", params={**q, "format": "netcdf"})
+        assert nc.status_code == 200
+        (tmp_path / "ts.nc").write_bytes(nc.content)
+        ts = xr.load_dataset(tmp_path / "ts.nc", engine="netcdf4")
+        time = ts["time"].values
+        assert time.size > 10 and np.all(np.diff(time) > 0)
+        series = plain.json()["series"]
+        assert np.all(np.diff(series["tau"]) > 0)
+        # the impacts are still there (the sample after each one is the one kept)
+        kinds = ts["kind"].values
+        assert np.isin(kinds, (1, 2)).any()
+        assert np.isin(series["kind"], (1, 2)).any()

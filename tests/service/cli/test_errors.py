@@ -329,6 +329,127 @@ def test_help_shows_the_default_of_every_option(capsys: pytest.CaptureFixture[st
     assert "(default: 0.3)" in text and "(default: paper)" in text and "(default: off)" in text
 
 
+def test_every_command_has_a_description_and_version_names_both_versions(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from service.studies.provenance import package_version
+    from worker.simulate import SOLVER_VERSION
+
+    bare = [name for name, parser in _subparsers(build_parser()) if not parser.description]
+    assert not bare, f"commands whose --help has no description: {bare}"
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    out = capsys.readouterr().out
+    assert out == f"impactcell {package_version()} (solver version {SOLVER_VERSION})\n"
+
+
+# --------------------------------------------------------------------------- the point store
+
+
+def test_a_bad_number_names_the_flag_and_no_internal_name() -> None:
+    out = run("points", "--theta", "abc")
+    assert out.returncode == 2
+    line = one_error_line(out.stderr)
+    assert "argument --theta: must be a number, got 'abc'" in line and "_float" not in line
+    out = run("points", "--gap-min", "inf")
+    assert "argument --gap-min: must be a finite number, got 'inf'" in one_error_line(out.stderr)
+
+
+@pytest.mark.parametrize("command", [["gc", "--dry-run"], ["gc"], ["points"]])
+def test_a_data_dir_without_a_catalogue_is_bad_usage_and_creates_nothing(
+    command: list[str], tmp_path: Path
+) -> None:
+    typo = tmp_path / "typo"
+    out = run(*command, "--data-dir", str(typo))
+    assert out.returncode == 2
+    assert f"--data-dir {typo}: no such folder" in one_error_line(out.stderr)
+    assert not typo.exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    out = run(*command, "--data-dir", str(empty))
+    assert out.returncode == 2
+    assert f"no catalogue database at {empty / 'catalogue.sqlite'}" in one_error_line(out.stderr)
+    assert list(empty.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- answers of a server
+
+
+@pytest.fixture
+def not_impactcell(tmp_path: Path) -> Iterator[str]:
+    """A real HTTP server on the loopback that is not impactcell: it serves an HTML page."""
+    import functools
+    import http.server
+    import threading
+
+    (tmp_path / "index.html").write_text("<html>\n<body>\n<h1>Welcome</h1>\n</body>\n</html>\n")
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args: object) -> None:
+            pass
+
+    handler = functools.partial(Quiet, directory=str(tmp_path))
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{srv.server_address[1]}"
+    srv.shutdown()
+    thread.join()
+
+
+@pytest.mark.parametrize(
+    ("args", "answer"),
+    [
+        (["status"], "GET /studies answered HTTP 404 File not found with text/html"),
+        (["status", "abc12345"], "GET /studies/abc12345 answered HTTP 404"),
+        (["submit", "STUDY"], "POST /studies answered HTTP 501"),
+    ],
+)
+@pytest.mark.slow  # a real HTTP server on the loopback
+def test_a_server_that_is_not_impactcell_is_one_line_without_its_page(
+    args: list[str], answer: str, not_impactcell: str, study_file: Path
+) -> None:
+    argv = [str(study_file) if a == "STUDY" else a for a in args]
+    out = run(*argv, "--url", not_impactcell)
+    assert out.returncode in (1, 2) and out.stdout == ""
+    line = one_error_line(out.stderr)
+    assert out.stderr.strip() == line  # one line: no page
+    assert f"{not_impactcell} is not an impactcell service: {answer}" in line
+    assert "<" not in line and "Welcome" not in out.stderr
+
+
+def test_the_services_problems_are_printed_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from fastapi.testclient import TestClient
+
+    from service.api.app import create_app
+    from service.api.settings import Settings
+    from service.cli import service as service_cli
+    from service.client import Client
+    from tests.service.cli.test_study import ADAPTIVE
+    from tests.service.helpers import AppTransport
+
+    bad = tiny_study()
+    bad["grid"]["gamma_r"]["num"] = -3
+    bad["colour"] = "blue"
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    (tmp_path / "adaptive.yaml").write_text(yaml.safe_dump(ADAPTIVE))
+    with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
+        monkeypatch.setattr(
+            service_cli, "_client", lambda args: Client("http://app", transport=AppTransport(tc))
+        )
+        out = run("submit", str(tmp_path / "bad.yaml"))
+        assert out.returncode == 2
+        assert out.stderr.startswith("impactcell: error: body: 2 problems\n")
+        assert out.stderr.count("grid.gamma_r.num") == 1
+        assert out.stderr.count("colour: unknown key") == 1
+        # an adaptive study's total is the most it may take
+        out = run("submit", str(tmp_path / "adaptive.yaml"))
+        assert out.returncode == 0 and out.stdout.rstrip().endswith("queued  up to 30 points")
+
+
 # --------------------------------------------------------------------------- real processes
 
 

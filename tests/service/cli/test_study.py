@@ -62,7 +62,32 @@ def test_studies_lists_every_shipped_study_with_its_description(
     assert main(["studies", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert [r["name"] for r in rows] == list(shipped)
-    assert {"name", "points", "description"} == set(rows[0])
+    assert {"name", "points", "adaptive", "description"} == set(rows[0])
+    assert [r["adaptive"] for r in rows] == [load_study(p).is_adaptive for p in shipped.values()]
+
+
+ADAPTIVE = {
+    **tiny_study(name="adaptive-tiny"),
+    "adaptive": {"axis": "gamma_r", "target": "band_edges", "threshold_db": 0, "tol": 0.05,
+                 "min_width": 0.5, "max_points": 30},
+    "grid": {"gamma_r": {"start": 0.5, "stop": 3.0, "num": 2}, "gap": 0.1, "theta": 0.3,
+             "sigma": 0.05, "gamma_s": 1.0},
+}  # fmt: skip
+
+
+@pytest.mark.slow  # runs a (small) adaptive study
+def test_an_adaptive_study_is_announced_with_the_most_it_may_take(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    f = tmp_path / "adaptive-tiny.yaml"
+    f.write_text(yaml.safe_dump(ADAPTIVE))
+    monkeypatch.setattr("service.studies.shipped.shipped_studies", lambda: {f.stem: f})
+    assert main(["studies"]) == 0
+    assert "adaptive-tiny  up to 30 points" in capsys.readouterr().out
+    assert main(["run", str(f), "--serial", "--no-progress", "--out", str(tmp_path / "d")]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("points"))
+    taken = int(line.split()[1].replace(",", ""))
+    assert 2 <= taken <= 30 and line.endswith(f"{taken:,} (adaptive: up to 30 allowed)")
 
 
 def test_an_unknown_study_name_lists_the_shipped_ones(
@@ -99,3 +124,17 @@ def test_run_help_gives_the_runners_chunk_size(capsys: pytest.CaptureFixture[str
     assert exc.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert f"points per dask task (default {DEFAULT_CHUNK_SIZE}, less for small studies)" in text
+
+
+def test_the_docs_list_what_impactcell_studies_lists(capsys: pytest.CaptureFixture[str]) -> None:
+    import re
+
+    text = (Path(__file__).resolve().parents[3] / "docs" / "studies.md").read_text()
+    section = text.split("## Shipped studies", 1)[1].split("\n## ", 1)[0]
+    documented = {
+        m.group(1): int(m.group(2).replace(",", ""))
+        for m in re.finditer(r"^\| `([\w-]+)` \| ([\d,]+) \|", section, re.MULTILINE)
+    }
+    assert main(["studies", "--json"]) == 0
+    listed = {r["name"]: r["points"] for r in json.loads(capsys.readouterr().out)}
+    assert documented == listed
