@@ -29,8 +29,8 @@ importlib.import_module("numpy")
 # --------------------------------------------------------------------------- test tiers
 
 # ``pytest -n 2 -m "not slow"`` is the developer loop (its time: README.md); CI runs everything.
-# A test that uses one of these fixtures starts a real dask cluster, so it is slow wherever it lives;
-# servers, subprocesses and whole studies are marked where they are written.
+# A test that uses one of these fixtures starts a real dask cluster, so it is slow wherever it
+# lives; servers, subprocesses and whole studies are marked where they are written.
 CLUSTER_FIXTURES = frozenset({"dask_address", "cluster_client"})
 
 
