@@ -535,14 +535,15 @@ class Catalogue:
             return bool(res.rowcount)
 
     def release_fenced(self, name: str, holder: str, token: int) -> None:
-        """Give a fenced lease back: it expires now, its row (and generation) stays, so the
-        next holder's token is newer than every earlier one."""
+        """Give a fenced lease back: it expires now and its generation moves on (so ``token``
+        is stale from now on); the row stays, so the next holder's token is newer than every
+        earlier one."""
         with self._tx() as s:
             s.execute(
                 update(LeaseRow)
                 .where(LeaseRow.name == name, LeaseRow.holder == holder,
                        LeaseRow.generation == token)
-                .values(expires_at=utcnow())
+                .values(expires_at=utcnow(), generation=token + 1)
             )  # fmt: skip
 
     def fence_ok(self, name: str, holder: str, token: int) -> bool:

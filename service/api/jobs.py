@@ -527,8 +527,9 @@ class JobManager:
             info = self._client.scheduler_info()
             self._nworkers = max(1, sum(w.get("nthreads", 1) for w in info["workers"].values()))
             self._pool = ChunkPool(
-                self._client, max(8, 4 * self._nworkers), self.settings.point_limits()
-            )
+                self._client, max(8, 4 * self._nworkers), self.settings.point_limits(),
+                hold=True, backoff_cap=self._backoff_cap,
+            )  # fmt: skip
         if method not in self._warm:
             warm_up(self._client, method)
             self._warm.add(method)

@@ -332,6 +332,8 @@ class StudyRun:
         out: list[tuple[int, int]] = []
         for a, b in missing:
             for s in range(a, b, block):
+                if self.store.fence is not None:  # a huge grid takes minutes: stop once not ours
+                    self.store.fence.check()
                 e = min(s + block, b)
                 keys = self.keys(s, e)
                 known = self.points.lookup(keys)
