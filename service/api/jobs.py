@@ -50,7 +50,14 @@ from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import StudyStore
 from service.studies.dataset import json_text
 from service.studies.fence import Backoff, Fence, FenceLost, is_transient
-from service.studies.runner import ChunkPool, StudyRun, make_client, make_run, warm_up
+from service.studies.runner import (
+    ChunkPool,
+    RunSummary,
+    StudyRun,
+    make_client,
+    make_run,
+    warm_up,
+)
 from service.studies.schema import Study, study_from_canonical
 
 __all__ = ["JobManager", "StateError"]
@@ -83,9 +90,11 @@ class _Active:
     failures: list[dict[str, Any]] = field(default_factory=list)
     last_progress: float = 0.0
     shown: str | None = None  # the waiting reason its record shows (None: running)
+    said: str | None = None  # the waiting reason last logged
     show_backoff: Backoff = field(default_factory=Backoff)  # writing that status
     finish_error: BaseException | None = None  # why its results file could not be written yet
     finish_backoff: Backoff | None = None
+    summary: RunSummary | None = None  # its results file, once written
 
     def wall_s(self) -> float:
         return self.prior_wall_s + time.monotonic() - self.started
@@ -325,22 +334,24 @@ class JobManager:
             if err is None and self._pool is not None:
                 err = self._pool.stalls.get(sid)
             want = None if err is None else _waiting_reason(err)
+            if want != act.said:  # said once per change, even while the record cannot be
+                act.said = want
+                if want:
+                    log.warning("study %s waits: %s", sid, want)
+                else:
+                    log.warning("study %s goes on: its chunks are stored again", sid)
             if want == act.shown or not act.show_backoff.due():
                 continue
             fields: dict[str, Any] = {"status": "waiting", "error": want} if want else {
                 "status": "running", "error": None}  # fmt: skip
             try:
-                if not self.catalogue.update_fenced(sid, act.fence, RUNNING, **fields):
-                    continue  # cancelled, or no longer ours: the heartbeat sees to it
+                self.catalogue.update_fenced(sid, act.fence, RUNNING, **fields)
             except Exception as exc:  # noqa: BLE001 - the catalogue itself may be away
                 act.show_backoff.failed()
-                log.warning("study %s: could not record %s: %s", sid, fields["status"], exc)
+                log.info("study %s: could not record %s: %s", sid, fields["status"], exc)
                 continue
+            # (not written: cancelled, or no longer ours; the heartbeat sees to it)
             act.show_backoff.ok()
-            if want:
-                log.warning("study %s waits: %s", sid, want)
-            else:
-                log.info("study %s goes on", sid)
             act.shown = want
 
     def _take_new(self, block: bool) -> None:
@@ -561,7 +572,11 @@ class JobManager:
         if act.finish_backoff is not None and not act.finish_backoff.due():
             return
         try:
-            summary = act.run.collate(self._nworkers)
+            # Collated once: collating removes the chunks, so a retry (the catalogue was away)
+            # records the results file written then.
+            if act.summary is None:
+                act.summary = act.run.collate(self._nworkers)
+            summary = act.summary
             size = Path(summary.path).stat().st_size
             self._check_fence(sid, act.fence[2])
             self.catalogue.add_result_file(sid, str(summary.path), size)
@@ -642,7 +657,10 @@ class JobManager:
         known = set(self._active) | set(self._waiting) | set(self._preparing)
         known |= set(self._prep_retry)
         for sid in self.catalogue.ids_with_status(ACTIVE):
-            if sid not in known and self.catalogue.lease_free(lease_name(sid)):
+            if sid in known:
+                continue
+            lease = self.catalogue.lease(lease_name(sid))
+            if lease is None or lease["expires_at"] <= utcnow() or _holder_gone(lease["holder"]):
                 self._waiting.append(sid)
 
     def _forget(self, sid: str) -> None:

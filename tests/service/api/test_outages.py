@@ -106,13 +106,15 @@ def _after_first_chunk(fault: Callable[[], None]) -> Iterator[threading.Event]:
 
 def _run_through(tc: TestClient, d: dict[str, Any], fault: Callable[[], None],
                  mend: Callable[[], None], seen: Callable[[dict[str, Any]], bool],
+                 watch: Callable[[str], dict[str, Any]] | None = None,
                  ) -> tuple[dict[str, Any], list[int]]:  # fmt: skip
-    """Submit ``d``; the fault strikes after its first chunk; once ``seen`` holds, mend."""
+    """Submit ``d``; the fault strikes after its first chunk; once ``seen`` holds for what
+    ``watch(study id)`` gives (default: the study's record), mend."""
     with _count_launches() as launched, _after_first_chunk(fault) as hit:
         sid = tc.post("/studies", json=d).json()["id"]
         _wait(lambda: {"hit": hit.is_set()}, lambda r: r["hit"])
         t0 = time.monotonic()
-        _wait(lambda: tc.get(f"/studies/{sid}").json(), seen)
+        _wait(lambda: (watch or (lambda i: tc.get(f"/studies/{i}").json()))(sid), seen)
         waited = time.monotonic() - t0
         mend()
         rec = _wait(lambda: tc.get(f"/studies/{sid}").json(),
@@ -194,7 +196,8 @@ def test_postgresql_restarted_mid_study_pauses_it_until_it_is_back(
         pytest.skip("PostgreSQL leg: .ci/run says how to stop and start its server")
     data = tmp_path / "data"
     study = parse_study(STUDY)
-    log = data.parent / "pg-restart.log"
+    # beside the server's data (the server's user may not write here)
+    log = Path(os.environ["IMPACTCELL_TEST_PG_DATA"]).parent / "restart.log"
 
     def fault() -> None:
         _pg_ctl("-m", "fast", "-w", "stop")
@@ -211,7 +214,8 @@ def test_postgresql_restarted_mid_study_pauses_it_until_it_is_back(
         # The database is away: nobody can read the record; the runner says it waits.
         rec, launched = _run_through(
             tc, STUDY, fault, mend,
-            lambda r: "catalogue database cannot be reached" in caplog.text,
+            lambda r: "waits: waiting: the catalogue database cannot be reached" in r["log"],
+            watch=lambda _: {"log": caplog.text},
         )  # fmt: skip
         assert rec["status"] == "finished", rec
         assert rec["points_done"] == study.size and rec["error"] is None
