@@ -702,7 +702,7 @@ def _waiting_reason(exc: BaseException) -> str:
         what = "the disk refused a write"
     else:
         what = "the catalogue database cannot be reached"
-    return f"waiting: {what} ({type(exc).__name__}: {text[:300]}); retried until it succeeds"
+    return f"{what} ({type(exc).__name__}: {text[:300]}); retried until it succeeds"
 
 
 def _holder_gone(holder: str) -> bool:

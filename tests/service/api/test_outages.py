@@ -214,7 +214,7 @@ def test_postgresql_restarted_mid_study_pauses_it_until_it_is_back(
         # The database is away: nobody can read the record; the runner says it waits.
         rec, launched = _run_through(
             tc, STUDY, fault, mend,
-            lambda r: "waits: waiting: the catalogue database cannot be reached" in r["log"],
+            lambda r: "waits: the catalogue database cannot be reached" in r["log"],
             watch=lambda _: {"log": caplog.text},
         )  # fmt: skip
         assert rec["status"] == "finished", rec
