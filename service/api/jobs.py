@@ -376,10 +376,10 @@ class JobManager:
         for sid, ev in drops.items():
             if sid in self._waiting:
                 self._waiting.remove(sid)
-            self._prep_retry.pop(sid, None)
-            if self._preparing.pop(sid, None) is not None:
-                # Its preparation finishes on its own; with the lease given back (a new token
-                # for whoever runs it next) nothing it would still write can commit.
+            retrying = self._prep_retry.pop(sid, None) is not None
+            if self._preparing.pop(sid, None) is not None or retrying:
+                # A preparation still going finishes on its own; with the lease given back
+                # (its token stale) nothing it would still write can commit.
                 self._unhold(sid, release=True)
             self._drop_active(sid)
             ev.set()

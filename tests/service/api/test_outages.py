@@ -8,7 +8,9 @@ import logging
 import os
 import shutil
 import signal
+import socket
 import subprocess
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -179,41 +181,68 @@ def test_a_disk_refusing_writes_mid_study_pauses_it_until_it_takes_them_again(
             subprocess.run(["umount", "-l", str(disk)], check=False)
 
 
-def _pg_ctl(*args: str) -> None:
-    cmd = [str(Path(os.environ["IMPACTCELL_TEST_PG_BIN"]) / "pg_ctl"),
-           "-D", os.environ["IMPACTCELL_TEST_PG_DATA"], *args]  # fmt: skip
+def _as_pg(cmd: list[str]) -> list[str]:
+    """``cmd`` as PostgreSQL's user when we are root (the server refuses to run as root)."""
+    return ["runuser", "-u", "postgres", "--", *cmd] if os.geteuid() == 0 else cmd
+
+
+@pytest.fixture
+def own_postgres(tmp_path: Path) -> Iterator[tuple[str, Callable[[], None], Callable[[], None]]]:
+    """A PostgreSQL server of this test alone (stopping CI's would break the other xdist
+    process's tests): its URL, and functions that stop and start it."""
+    if not os.environ.get("IMPACTCELL_TEST_DATABASE_URL"):
+        pytest.skip("PostgreSQL leg: IMPACTCELL_TEST_DATABASE_URL is not set (.ci/run sets it)")
+    bins = sorted(Path("/usr/lib/postgresql").glob("*/bin/pg_ctl"))
+    if not bins:
+        pytest.skip("PostgreSQL leg: no pg_ctl under /usr/lib/postgresql")
+    pg_bin = bins[-1].parent
+    root = Path(tempfile.mkdtemp(prefix="impactcell-pg-restart."))
     if os.geteuid() == 0:
-        cmd = ["runuser", "-u", "postgres", "--", *cmd]
-    subprocess.run(cmd, check=True, capture_output=True, timeout=60)
+        shutil.chown(root, "postgres")
+    data = root / "data"
+    subprocess.run(_as_pg([str(pg_bin / "initdb"), "-D", str(data), "-U", "postgres", "--no-sync",
+                           "--auth=trust"]), check=True, capture_output=True)  # fmt: skip
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    opts = f"-c listen_addresses=127.0.0.1 -p {port} -k {root} -c fsync=off"
+
+    def start() -> None:
+        subprocess.run(_as_pg([str(pg_bin / "pg_ctl"), "-D", str(data), "-l",
+                               str(root / "server.log"), "-w", "-t", "60", "-o", opts, "start"]),
+                       check=True, capture_output=True)  # fmt: skip
+
+    def stop() -> None:
+        subprocess.run(_as_pg([str(pg_bin / "pg_ctl"), "-D", str(data), "-m", "fast", "-w",
+                               "stop"]), check=True, capture_output=True)  # fmt: skip
+
+    start()
+    try:
+        yield f"postgresql+psycopg://postgres@127.0.0.1:{port}/postgres", stop, start
+    finally:
+        subprocess.run(_as_pg([str(pg_bin / "pg_ctl"), "-D", str(data), "-m", "immediate",
+                               "stop"]), capture_output=True)  # fmt: skip
+        shutil.rmtree(root, ignore_errors=True)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("catalogue_url", ["postgresql"], indirect=True)
 def test_postgresql_restarted_mid_study_pauses_it_until_it_is_back(
-    tmp_path: Path, dask_address: str, catalogue_url: str, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, dask_address: str, own_postgres: Any, caplog: pytest.LogCaptureFixture
 ) -> None:
-    if not os.environ.get("IMPACTCELL_TEST_PG_DATA"):
-        pytest.skip("PostgreSQL leg: .ci/run says how to stop and start its server")
-    data = tmp_path / "data"
+    url, stop, start = own_postgres
     study = parse_study(STUDY)
-    # beside the server's data (the server's user may not write here)
-    log = Path(os.environ["IMPACTCELL_TEST_PG_DATA"]).parent / "restart.log"
-
-    def fault() -> None:
-        _pg_ctl("-m", "fast", "-w", "stop")
 
     def mend() -> None:
         time.sleep(3.0)  # an outage of a few seconds
-        _pg_ctl("-l", str(log), "-w", "-t", "60", "-o", os.environ["IMPACTCELL_TEST_PG_OPTS"],
-                "start")  # fmt: skip
+        start()
 
-    s = Settings(data_dir=data, scheduler=dask_address, database_url=catalogue_url,
+    s = Settings(data_dir=tmp_path / "data", scheduler=dask_address, database_url=url,
                  outage_backoff_s=1.0)  # fmt: skip
     caplog.set_level(logging.WARNING, logger="impactcell.jobs")
     with TestClient(create_app(s, run_jobs=True)) as tc:
         # The database is away: nobody can read the record; the runner says it waits.
         rec, launched = _run_through(
-            tc, STUDY, fault, mend,
+            tc, STUDY, stop, mend,
             lambda r: "waits: the catalogue database cannot be reached" in r["log"],
             watch=lambda _: {"log": caplog.text},
         )  # fmt: skip
