@@ -353,6 +353,12 @@ class JobManager:
             # (not written: cancelled, or no longer ours; the heartbeat sees to it)
             act.show_backoff.ok()
             act.shown = want
+            if want and err is not None and not isinstance(err, OSError):
+                # The catalogue answered: the database is back, the chunks go at once.
+                if self._pool is not None:
+                    self._pool.retry_now(sid)
+                if act.finish_backoff is not None:
+                    act.finish_backoff.next_at = 0.0
 
     def _take_new(self, block: bool) -> None:
         try:

@@ -718,6 +718,12 @@ class ChunkPool:
             if run is not None and run.pieces and key not in self._order:
                 self._order.append(key)  # an adaptive run asked for more, or a stall ended
 
+    def retry_now(self, key: str) -> None:
+        """Store run ``key``'s waiting chunks at the next step, not after its backoff (the
+        caller has seen the resource come back)."""
+        if key in self._backoff:
+            self._backoff[key].next_at = 0.0
+
     def _retry_unsaved(self) -> float | None:
         """Store again the chunks whose retry is due; seconds until the next retry (if any)."""
         nxt: float | None = None
