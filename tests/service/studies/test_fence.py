@@ -171,3 +171,79 @@ def test_a_run_whose_fence_is_lost_stops_without_writing(tmp_path: Path) -> None
     assert isinstance(pool.broken.get("s"), FenceLost)
     assert pool.step(0.01) == []  # never reported complete
     assert [p.name for _, _, p in run.store.chunks()] == ["0-2.g3.npz"]
+
+
+class _Points:
+    """A point store that knows nothing and whose saves fail while ``down``."""
+
+    def __init__(self) -> None:
+        self.down = False
+
+    def lookup(self, keys: Any) -> dict[str, Any]:
+        return {}
+
+    def save(self, rows: Any, solver: Any, link: Any = None) -> None:
+        if self.down:
+            raise OSError(errno.EIO, "database away")
+
+    def link(self, study_id: str, pairs: Any) -> None:
+        pass
+
+
+class _Pending(_Future):
+    """A future that is done only when the test says so."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__(n)
+        self.ready = False
+
+    def done(self) -> bool:
+        return self.ready
+
+    def add_done_callback(self, fn: Any) -> None:
+        pass
+
+
+class _HoldingClient:
+    def __init__(self) -> None:
+        self.futures: list[_Pending] = []
+
+    def submit(self, fn: Any, points: list[Any], *args: Any, **kw: Any) -> _Pending:
+        self.futures.append(_Pending(len(points)))
+        return self.futures[-1]
+
+    def cancel(self, futures: Any, force: bool = False) -> None:
+        pass
+
+
+def test_a_failed_store_or_a_removed_run_never_leaves_a_chunk_waiting_for_ever(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two studies of the same points: the second's chunks wait for the first's tasks (claims).
+    Storing fails, then the first study is removed (cancelled): the second's chunks go out again
+    and it completes (the resume that hung for good)."""
+    monkeypatch.setattr("distributed.Event", lambda *a, **k: type("E", (), {"set": lambda s: 0})())
+    points = _Points()
+    client = _HoldingClient()
+    pool = ChunkPool(client, 8, hold=True, backoff_cap=0.05)
+    a = StudyRun(parse_study(tiny_study(name="a", num=4, gaps=(0.1,))), tmp_path, chunk_size=2,
+                 points=points)  # fmt: skip
+    b = StudyRun(parse_study(tiny_study(name="b", num=4, gaps=(0.1,))), tmp_path, chunk_size=2,
+                 points=points)  # fmt: skip
+    pool.add("a", a)
+    pool.add("b", b)
+    pool.step(0.01)
+    assert len(client.futures) == 2  # b's chunks wait for a's tasks: nothing submitted for b
+    points.down = True
+    client.futures[0].ready = True
+    pool.step(0.01)  # a's first chunk cannot be stored; b's first chunk got its records
+    assert "a" in pool.stalls
+    pool.remove("a")  # cancelled, its second task never delivers
+    points.down = False
+    t0 = time.monotonic()
+    while not b.complete:
+        for f in client.futures:
+            f.ready = True
+        pool.step(0.01)
+        assert time.monotonic() - t0 < 5, "b waits for ever"
+    assert b.store.missing_ranges() == [] and b.done == 4
