@@ -505,8 +505,12 @@ class JobManager:
             if act.run.cached or not act.run.pieces:
                 self._finish(sid)
                 continue
-            pool = self._ensure_pool(study.solver.method)
-            act.run.plan(self._nworkers)
+            try:
+                pool = self._ensure_pool(study.solver.method)
+                act.run.plan(self._nworkers)
+            except Exception as exc:  # noqa: BLE001 - no cluster, or a plan it refuses: recorded
+                self._fail(sid, exc)
+                continue
             pool.add(sid, act.run)
 
     @property
