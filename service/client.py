@@ -284,7 +284,8 @@ class Client:
         timeout: float | None = None,
         poll: float = 0.5,
     ) -> dict[str, Any]:
-        """Poll until the study is finished; raises :class:`StudyFailed` if it fails/cancels.
+        """Poll until the study is finished; raises :class:`StudyFailed` if it fails/cancels
+        (a ``waiting`` study, paused by an outage, is waited for: it goes on by itself).
 
         ``progress``: ``True`` shows a progress line on stderr; a callable is called with every
         record polled instead (e.g. to feed a progress bar of one's own).
@@ -663,7 +664,10 @@ class _ProgressLine:
     def __call__(self, rec: Mapping[str, Any]) -> None:
         done, total = rec["points_done"], rec["points_total"]
         pct = 100.0 * done / total if total else 100.0
-        sys.stderr.write(f"\r{rec['name']}: {pct:5.1f}% {done:,}/{total:,} pt [{rec['status']}]")
+        why = f": {rec['error']}" if rec["status"] == "waiting" and rec.get("error") else ""
+        sys.stderr.write(
+            f"\r{rec['name']}: {pct:5.1f}% {done:,}/{total:,} pt [{rec['status']}{why}]"
+        )
         sys.stderr.flush()
         self.drawn = True
 

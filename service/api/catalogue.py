@@ -45,15 +45,19 @@ from service.api import migrate
 __all__ = [
     "ACTIVE",
     "RESUMABLE",
+    "RUNNING",
     "STATUSES",
     "Catalogue",
     "metadata",
     "utcnow",
 ]
 
-# queued → running → finished | failed | cancelled; resume puts cancelled/failed back in queue.
-STATUSES = ("queued", "running", "finished", "failed", "cancelled")
-ACTIVE = ("queued", "running")  # can be cancelled; left by a stopped service: run again
+# queued → running ⇄ waiting → finished | failed | cancelled; resume puts cancelled/failed back in
+# the queue. ``waiting``: running, but paused by an outage (the database or the disk; the reason
+# in ``error``), retried with backoff until it goes on by itself.
+STATUSES = ("queued", "running", "waiting", "finished", "failed", "cancelled")
+ACTIVE = ("queued", "running", "waiting")  # can be cancelled; left by a stopped service: run again
+RUNNING = ("running", "waiting")  # a process runs it (holding its lease)
 RESUMABLE = ("cancelled", "failed")  # can be resumed
 
 
@@ -130,6 +134,8 @@ class LeaseRow(_Base):
     name: Mapped[str] = mapped_column(String(200), primary_key=True)
     holder: Mapped[str] = mapped_column(String(200))
     expires_at: Mapped[dt.datetime] = mapped_column(DateTime(timezone=True))
+    # The fencing token (0003): one more at every acquisition that is not a renewal.
+    generation: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
 
 
 class PointRow(_Base):
@@ -479,6 +485,89 @@ class Catalogue:
         except IntegrityError:  # a concurrent insert of the same lease won
             return False
 
+    def acquire_fenced(
+        self, name: str, holder: str, ttl_s: float, *, take_from: str | None = None
+    ) -> int | None:
+        """Take the named lease like :meth:`acquire_lease`; its new generation (the fencing
+        token), or None when another holder's lease is alive.
+
+        Every acquisition that is not the live holder renewing gets a new generation, also a
+        holder taking back its own expired lease: writes checked against an older token
+        (:meth:`fence_ok`) fail from then on. ``take_from``: a holder known to be gone, whose
+        lease is taken even though it has not expired."""
+        now = utcnow()
+        expires = now + dt.timedelta(seconds=ttl_s)
+        try:
+            with self._tx() as s:
+                row = s.get(LeaseRow, name, with_for_update=True)
+                if row is None:
+                    s.add(LeaseRow(name=name, holder=holder, expires_at=expires, generation=1))
+                    return 1
+                held_until = _aware(row.expires_at)
+                alive = held_until is not None and held_until > now
+                if alive and take_from is not None and row.holder == take_from:
+                    alive = False
+                if alive and row.holder != holder:
+                    return None
+                gen = int(row.generation or 0) + (0 if alive else 1)
+                res = s.execute(  # compare-and-set, as in acquire_lease
+                    update(LeaseRow)
+                    .where(LeaseRow.name == name, LeaseRow.holder == row.holder,
+                           LeaseRow.generation == row.generation,
+                           LeaseRow.expires_at == row.expires_at)
+                    .values(holder=holder, expires_at=expires, generation=gen)
+                )  # fmt: skip
+                return gen if res.rowcount else None
+        except IntegrityError:  # a concurrent insert of the same lease won
+            return None
+
+    def renew_fenced(self, name: str, holder: str, token: int, ttl_s: float) -> bool:
+        """Extend the lease held with ``token`` (even if it has just expired: nobody took it
+        meanwhile, or its generation would differ); false when the token is stale."""
+        expires = utcnow() + dt.timedelta(seconds=ttl_s)
+        with self._tx() as s:
+            res = s.execute(
+                update(LeaseRow)
+                .where(LeaseRow.name == name, LeaseRow.holder == holder,
+                       LeaseRow.generation == token)
+                .values(expires_at=expires)
+            )  # fmt: skip
+            return bool(res.rowcount)
+
+    def release_fenced(self, name: str, holder: str, token: int) -> None:
+        """Give a fenced lease back: it expires now and its generation moves on (so ``token``
+        is stale from now on); the row stays, so the next holder's token is newer than every
+        earlier one."""
+        with self._tx() as s:
+            s.execute(
+                update(LeaseRow)
+                .where(LeaseRow.name == name, LeaseRow.holder == holder,
+                       LeaseRow.generation == token)
+                .values(expires_at=utcnow(), generation=token + 1)
+            )  # fmt: skip
+
+    def fence_ok(self, name: str, holder: str, token: int) -> bool:
+        """Whether ``holder`` still holds the lease with generation ``token``."""
+        with self.engine.begin() as conn:
+            return fence_ok(conn, name, holder, token)
+
+    def update_fenced(
+        self, study_id: str, fence: tuple[str, str, int], allowed: Sequence[str] | None = None,
+        **fields: Any,
+    ) -> bool:  # fmt: skip
+        """Set fields of a study if ``fence`` (lease name, holder, token) is current and, with
+        ``allowed``, its status is one of them: checked in the same transaction, the lease row
+        locked (PostgreSQL), so no takeover commits in between. Whether it was written."""
+        if "failures" in fields and not isinstance(fields["failures"], str):
+            fields["failures"] = json.dumps(fields["failures"])
+        with self._tx() as s:
+            if not fence_ok(s, *fence):
+                return False
+            q = update(StudyRow).where(StudyRow.id == study_id)
+            if allowed is not None:
+                q = q.where(StudyRow.status.in_(allowed))
+            return bool(s.execute(q.values(**fields)).rowcount)
+
     def lease_free(self, name: str) -> bool:
         """Whether nobody holds the named lease (never taken, given back, or expired)."""
         with self._tx() as s:
@@ -545,6 +634,16 @@ class Catalogue:
             s.add(row)
             s.flush()
             return int(row.id)
+
+
+def fence_ok(conn: Any, name: str, holder: str, token: int) -> bool:
+    """Whether ``holder`` holds lease ``name`` with generation ``token``, read on ``conn`` (a
+    connection or session in the caller's transaction) with the row locked where the database
+    can (``FOR UPDATE``), so that the caller's writes commit before any takeover does."""
+    row = conn.execute(
+        select(LeaseRow.holder, LeaseRow.generation).where(LeaseRow.name == name).with_for_update()
+    ).first()
+    return row is not None and row[0] == holder and int(row[1] or 0) == token
 
 
 WAL_TRIES = 40  # switching to WAL: tries 20 ms, 40 ms, ... apart (~16 s in all)

@@ -30,7 +30,13 @@ from typing import Any
 
 from service.api.catalogue import Catalogue
 from service.api.jobs import JobManager, StateError
-from service.api.schedule import record_run, recover_interrupted
+from service.api.schedule import (
+    PROCESS_HOLDER,
+    RUN_LEASE_TTL_S,
+    Heartbeat,
+    record_run,
+    recover_interrupted,
+)
 from service.api.settings import Settings
 from service.regression.compare import StudyComparison
 from service.regression.run import (
@@ -51,6 +57,11 @@ __all__ = ["NightlyBusy", "NightlyRunner"]
 log = logging.getLogger("impactcell.nightly")
 
 _ENDED = ("finished", "failed", "cancelled")
+
+
+#: Held (and renewed) by the process whose nightly run goes on: one run at a time across every
+#: service process on the catalogue.
+SUITE_LEASE = "nightly-suite"
 
 
 class NightlyBusy(RuntimeError):
@@ -108,7 +119,15 @@ class NightlyRunner:
             submitted).
         """
         with self._lock:
-            return self._run()
+            self._take_suite_lease()
+            with Heartbeat(self.catalogue, SUITE_LEASE):
+                return self._run()
+
+    def _take_suite_lease(self) -> None:
+        if not self.catalogue.acquire_lease(SUITE_LEASE, PROCESS_HOLDER, RUN_LEASE_TTL_S):
+            raise NightlyBusy(
+                "a nightly run is in progress in another service process; see GET /regressions"
+            )
 
     def start(self, trigger: str = "api") -> int:
         """Start a run in a background thread; returns its regression id (``GET /regressions``).
@@ -123,17 +142,21 @@ class NightlyRunner:
         if not self._lock.acquire(blocking=False):
             raise NightlyBusy("a nightly run is in progress; see GET /regressions")
         try:
+            self._take_suite_lease()
             reg_id = self.catalogue.add_regression(trigger)
 
             def work() -> None:
                 try:
-                    record_run(self.catalogue, reg_id, self._run)
+                    with Heartbeat(self.catalogue, SUITE_LEASE):
+                        record_run(self.catalogue, reg_id, self._run)
                 finally:
                     self._lock.release()
 
             self._thread = threading.Thread(target=work, name="impactcell-nightly-run", daemon=True)
             self._thread.start()
         except BaseException:
+            with contextlib.suppress(Exception):  # else it just expires
+                self.catalogue.release_lease(SUITE_LEASE, PROCESS_HOLDER)
             self._lock.release()
             raise
         return reg_id

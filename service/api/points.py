@@ -21,8 +21,16 @@ from typing import Any
 from sqlalchemy import and_, delete, exists, func, select
 from sqlalchemy.engine import Engine
 
-from service.api.catalogue import PointRow, SolverRow, StudyPointRow, StudyRow, utcnow
+from service.api.catalogue import (
+    PointRow,
+    SolverRow,
+    StudyPointRow,
+    StudyRow,
+    fence_ok,
+    utcnow,
+)
 from service.studies.chunks import CHUNK_FIELDS, record_columns, with_transient_flag
+from service.studies.fence import FenceLost
 from service.studies.points import KEY_LENGTH, PARAM_COLUMNS, cell_of, solver_key
 from service.studies.variables import AXES, result_values, stop_coordinate
 from worker.simulate import SOLVER_VERSION
@@ -80,11 +88,20 @@ def _start(point: Mapping[str, Any], key_after: str | None) -> str:
 
 class SqlPointStore:
     """The point store over a catalogue's SQLAlchemy engine (thread-safe: a connection per
-    call). Implements ``service.studies.points.PointStore`` for the runner."""
+    call). Implements ``service.studies.points.PointStore`` for the runner.
+
+    ``fences`` maps a study id to its fence (lease name, holder, token): a save or link for
+    that study commits only while the fence is current, else raises ``FenceLost``."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
         self._solvers: set[str] = set()  # solver keys known to be stored
+        self.fences: dict[str, tuple[str, str, int]] = {}
+
+    def _check_fence(self, conn: Any, study_id: str | None) -> None:
+        fence = self.fences.get(study_id) if study_id is not None else None
+        if fence is not None and not fence_ok(conn, *fence):
+            raise FenceLost(f"study {study_id}: lease {fence[0]} is no longer ours")
 
     # ------------------------------------------------------------------ the runner's side
 
@@ -139,6 +156,7 @@ class SqlPointStore:
                 "created_at": now,
             }
         with self.engine.begin() as conn:
+            self._check_fence(conn, link[0] if link else None)
             if skey not in self._solvers:
                 if conn.execute(select(SolverRow.key).where(SolverRow.key == skey)).first() is None:
                     conn.execute(
@@ -155,6 +173,7 @@ class SqlPointStore:
         if not pairs:
             return
         with self.engine.begin() as conn:
+            self._check_fence(conn, study_id)
             _link(conn, study_id, pairs)
 
     # ------------------------------------------------------------------ housekeeping

@@ -34,6 +34,7 @@ __all__ = [
     "next_slot",
     "record_run",
     "recover_interrupted",
+    "Heartbeat",
     "run_lease",
     "run_nightly_once",
 ]
@@ -88,7 +89,7 @@ def record_run(catalogue: Catalogue, reg_id: int, run: Callable[[], dict[str, An
     process holds the run's heartbeat lease (:func:`run_lease`), so that no other process takes
     the run for interrupted.
     """
-    with _Heartbeat(catalogue, run_lease(reg_id)):
+    with Heartbeat(catalogue, run_lease(reg_id)):
         _record(catalogue, reg_id, run)
 
 
@@ -110,7 +111,7 @@ def _record(catalogue: Catalogue, reg_id: int, run: Callable[[], dict[str, Any]]
     )  # fmt: skip
 
 
-class _Heartbeat:
+class Heartbeat:
     """Hold a lease and renew it every third of its lifetime until the block ends."""
 
     def __init__(self, catalogue: Catalogue, name: str, ttl_s: float | None = None) -> None:
@@ -119,7 +120,7 @@ class _Heartbeat:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._beat, name=f"heartbeat {name}", daemon=True)
 
-    def __enter__(self) -> _Heartbeat:
+    def __enter__(self) -> Heartbeat:
         self.catalogue.acquire_lease(self.name, PROCESS_HOLDER, self.ttl_s)
         self._thread.start()
         return self

@@ -77,6 +77,10 @@ class Settings(BaseSettings):
     # A running study belongs to one service process: its lease in the catalogue, renewed
     # every ttl/3; another process takes it over only after the lease expired (a crash).
     lease_ttl_s: float = Field(30.0, ge=2, le=3600)
+    # A chunk or results file that cannot be stored (database unreachable, disk full or
+    # read-only) is retried with backoff from 0.5 s, doubling to at most this many seconds
+    # between tries, for as long as it takes; meanwhile its study shows ``waiting``.
+    outage_backoff_s: float = Field(30.0, ge=1, le=3600)
 
     @field_validator("api_token", "database_url", "scheduler", "nightly_cron", mode="before")
     @classmethod

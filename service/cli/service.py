@@ -77,7 +77,8 @@ class _ProgressBar:
             self.bar = tqdm(total=rec["points_total"], unit="pt", desc=rec["name"],
                             file=sys.stderr, dynamic_ncols=True)  # fmt: skip
         self.bar.update(rec["points_done"] - self.bar.n)
-        self.bar.set_postfix_str(rec["status"])
+        waiting = rec["status"] == "waiting" and rec.get("error")  # paused by an outage: why
+        self.bar.set_postfix_str(f"{rec['status']}: {rec['error']}" if waiting else rec["status"])
 
     def close(self) -> None:
         if self.bar is not None:

@@ -38,6 +38,7 @@ from service.studies.adaptive import (
 )
 from service.studies.chunks import StudyStore, record_columns
 from service.studies.dataset import open_results, results_from_records
+from service.studies.fence import Fence
 from service.studies.points import PointStore, point_key, save_chunk, solver_document
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
@@ -67,12 +68,13 @@ class AdaptiveRun:
         progress: Callable[[int, int], None] | None = None,
         on_chunk: Callable[[int, int, list[dict[str, Any]]], None] | None = None,
         points: PointStore | None = None,
+        fence: Fence | None = None,
     ) -> None:
         assert study.adaptive is not None
         self.t0 = time.perf_counter()
         self.study = study
         self.spec = study.adaptive
-        self.store = StudyStore(root, study)
+        self.store = StudyStore(root, study, fence=fence)
         self.points = points
         self.reuse = points is not None and study.tag is None
         self.solver = study.solver.settings().__dict__.copy()

@@ -5,6 +5,7 @@ resolved by the caller's :class:`~service.api.settings.Settings`)::
 
     studies/<id>/study.json            canonical definition (written once)
     studies/<id>/chunks/<start>-<stop>.npz   one finished chunk of points
+    studies/<id>/chunks/<start>-<stop>.g<token>.npz   one written by the service's runner
     studies/<id>/results.nc            the collated dataset (NetCDF4, zlib)
     studies/<id>/results.nc.sha256     its SHA-256 (``sha256sum`` format)
     studies/<id>/damaged/              files that failed their check, set aside
@@ -22,10 +23,19 @@ says is moved to ``damaged/`` (kept for inspection, logged) and its points count
 the next run computes them again (or takes them from the point store). The results file's
 SHA-256 is kept beside it; one that fails it is moved to ``damaged/`` too and the study is run
 again to rebuild it (:meth:`StudyStore.results_status`).
+
+A store given a fence (:class:`~service.studies.fence.Fence`: the service's lease generation of
+the study) names its chunk files with the token and checks the token just before each rename,
+so a process that lost the study to another cannot publish a chunk. Should a stale process pass
+that check and publish a chunk afterwards, its file has an older token than the chunks of the
+process that took over: where chunk files overlap, the one with the newest token counts and the
+others are removed (:meth:`StudyStore.chunks`); the new holder computes every point it did not
+find at its start, so nothing the older file held is lost.
 """
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
 import logging
@@ -43,6 +53,7 @@ import numpy as np
 import xarray as xr
 
 from service.studies.dataset import FILL_INT, PENDING, encoding, open_results, write_netcdf
+from service.studies.fence import Fence
 from service.studies.schema import Study
 from service.studies.variables import OUTCOMES, SWEEP_VARIABLES, VARIABLES, outcome_codes
 from worker.simulate import SOLVER_VERSION
@@ -60,6 +71,7 @@ __all__ = [
     "StudyStore",
     "atomic_write",
     "chunk_digest",
+    "chunk_name",
     "file_sha256",
     "data_root",
     "is_study_id",
@@ -78,7 +90,8 @@ RESULTS_FILE = "results.nc"
 _RESULTS_SUM = RESULTS_FILE + ".sha256"
 #: A study id: a hex content hash (the only text a study's file paths are built from).
 STUDY_ID = re.compile(r"^[0-9a-f]{8,64}$")
-_CHUNK = re.compile(r"^(\d+)-(\d+)\.npz$")
+# <start>-<stop>.npz, or <start>-<stop>.g<token>.npz (written under a fencing token)
+_CHUNK = re.compile(r"^(\d+)-(\d+)(?:\.g(\d+))?\.npz$")
 # Fields kept in chunk files (everything simulate_chunk reports that a dataset may hold).
 CHUNK_FIELDS = tuple(VARIABLES)
 # Fields kept besides in the chunk files of a sweep (simulate_line reports them).
@@ -105,8 +118,13 @@ def study_folder(root: str | os.PathLike[str] | None, study_id: str) -> Path:
     return data_root(root) / "studies" / study_id
 
 
-def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    """Call ``write(tmp)`` on a temporary file next to ``path``, fsync it, rename into place."""
+def atomic_write(
+    path: Path, write: Callable[[Path], None], before_publish: Callable[[], None] | None = None
+) -> None:
+    """Call ``write(tmp)`` on a temporary file next to ``path``, fsync it, rename into place.
+
+    ``before_publish`` runs just before the rename (a fencing check): if it raises, the
+    temporary file is removed and nothing is published."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
@@ -115,6 +133,8 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
         write(tmp)
         with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
+        if before_publish is not None:
+            before_publish()
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -129,6 +149,11 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
         pass
     finally:
         os.close(dfd)
+
+
+def chunk_name(start: int, stop: int, token: int | None = None) -> str:
+    """The file name of chunk ``start:stop`` (written under fencing ``token``, if any)."""
+    return f"{start}-{stop}.npz" if token is None else f"{start}-{stop}.g{token}.npz"
 
 
 def _stamp(st: os.stat_result) -> tuple[int, int, int]:
@@ -295,8 +320,12 @@ class PartialState:
 class StudyStore:
     """Files of one study under a data root."""
 
-    def __init__(self, root: str | os.PathLike[str] | None, study: Study) -> None:
+    def __init__(
+        self, root: str | os.PathLike[str] | None, study: Study, *, fence: Fence | None = None
+    ) -> None:
         self.study = study
+        #: The fencing token its chunk files carry, and the check before each is published.
+        self.fence = fence
         self.id = study.id
         if not is_study_id(self.id):
             raise ValueError(f"study id must be a hex digest, got {self.id!r}")
@@ -351,7 +380,8 @@ class StudyStore:
                 f"chunk {start}-{stop} needs {stop - start} records, got {len(records)}"
             )
         cols = record_columns(records, self.fields)
-        path = self.chunk_dir / f"{start}-{stop}.npz"
+        token = None if self.fence is None else self.fence.token
+        path = self.chunk_dir / chunk_name(start, stop, token)
         data = {"_start": np.array(start), "_stop": np.array(stop), "_retry": np.array(retry),
                 **cols}  # fmt: skip
         digest = np.array(chunk_digest(data))  # checked by every read (_load_chunk)
@@ -360,7 +390,7 @@ class StudyStore:
             with open(tmp, "wb") as fh:
                 np.savez(fh, _sha256=digest, **data)
 
-        atomic_write(path, write)
+        atomic_write(path, write, None if self.fence is None else self.fence.check)
         self._forget(path.name)
         if self._held_points + stop - start <= HOLD_POINTS:
             self._held[path.name] = (_stamp(path.stat()), data)
@@ -373,15 +403,30 @@ class StudyStore:
             self._held_points -= int(held[1]["_stop"]) - int(held[1]["_start"])
 
     def chunks(self) -> list[tuple[int, int, Path]]:
-        """Finished chunk files as (start, stop, path), by start."""
+        """Finished chunk files as (start, stop, path), by start.
+
+        Where files overlap (a process that lost the study published a chunk after another
+        took it over), the newest token's count and the others are removed."""
         if not self.chunk_dir.is_dir():
             return []
-        out = []
+        found = []
         for p in self.chunk_dir.iterdir():
             m = _CHUNK.match(p.name)
             if m:
-                out.append((int(m.group(1)), int(m.group(2)), p))
-        return sorted(out)
+                found.append((int(m.group(3) or 0), int(m.group(1)), int(m.group(2)), p))
+        found.sort(key=lambda f: (-f[0], f[1]))
+        kept: list[tuple[int, int, Path]] = []
+        taken: list[tuple[int, int]] = []  # ranges of kept files, by start
+        for _token, start, stop, p in found:
+            i = bisect.bisect_left(taken, (start, stop))
+            clash = (i > 0 and taken[i - 1][1] > start) or (i < len(taken) and taken[i][0] < stop)
+            if clash:  # superseded by a newer holder's chunk
+                p.unlink(missing_ok=True)
+                self._forget(p.name)
+                continue
+            taken.insert(i, (start, stop))
+            kept.append((start, stop, p))
+        return sorted(kept)
 
     def _load_chunk(self, path: Path) -> dict[str, np.ndarray] | None:
         """A chunk file's arrays, checked; ``None`` if it vanished, or if it is damaged (then

@@ -50,6 +50,7 @@ from service.studies.adaptive_run import AdaptiveRun
 from service.studies.chunks import MissingPoints, StudyStore, iter_chunk_ranges
 from service.studies.dask_settings import user_set
 from service.studies.dataset import open_results, results_from_records, summarize
+from service.studies.fence import Backoff, Fence, FenceLost, is_transient
 from service.studies.limits import DEFAULT_CHUNK_SIZE
 from service.studies.points import (
     TASK_FAILED,
@@ -278,10 +279,11 @@ class StudyRun:
         progress: Progress | None = None,
         on_chunk: ChunkDone | None = None,
         points: PointStore | None = None,
+        fence: Fence | None = None,
     ) -> None:
         self.t0 = time.perf_counter()
         self.study = study
-        self.store = StudyStore(root, study)
+        self.store = StudyStore(root, study, fence=fence)
         self.points = points
         # A tagged study is a fresh run of its definition (the nightly suite's): it computes
         # every point itself (and stores what it computes).
@@ -336,6 +338,8 @@ class StudyRun:
         out: list[tuple[int, int]] = []
         for a, b in missing:
             for s in range(a, b, block):
+                if self.store.fence is not None:  # a huge grid takes minutes: stop once not ours
+                    self.store.fence.check()
                 e = min(s + block, b)
                 keys = self.keys(s, e)
                 known = self.points.lookup(keys)
@@ -495,10 +499,33 @@ class ChunkPool:
     submitted again; that task's record is handed to both (a claim per point key). A sweep line
     waits only when every point of it is being computed already (its points depend on each
     other); otherwise it is computed whole.
+
+    Storing a chunk may fail. Without ``hold``, the error is raised (the command line's run
+    ends). With ``hold`` (the service), a chunk that cannot be stored for a passing reason
+    (:func:`~service.studies.fence.is_transient`: the database or the disk) is kept in memory
+    and stored again with backoff (at most ``backoff_cap`` s apart), its run takes no new
+    chunks meanwhile and ``stalls`` names the error; a run whose fence is lost, or whose chunk
+    failed otherwise, is listed in ``broken`` (the caller drops or fails it).
     """
 
-    def __init__(self, client: Any, window: int, limits: PointLimits | None = None) -> None:
+    def __init__(
+        self,
+        client: Any,
+        window: int,
+        limits: PointLimits | None = None,
+        *,
+        hold: bool = False,
+        backoff_cap: float = 30.0,
+    ) -> None:
         self.client = client
+        self.hold = hold
+        self.backoff_cap = backoff_cap
+        #: run key → the error its chunks' storing fails with now (they are kept and retried)
+        self.stalls: dict[str, BaseException] = {}
+        #: run key → why it cannot go on here (``FenceLost``, or a chunk it could not store)
+        self.broken: dict[str, BaseException] = {}
+        self._unsaved: dict[str, deque[tuple[_Piece, list[dict[str, Any]]]]] = {}
+        self._backoff: dict[str, Backoff] = {}
         self.window = window
         self.limits = asdict(limits or PointLimits())
         self.runs: dict[str, StudyRun] = {}
@@ -529,11 +556,18 @@ class ChunkPool:
         run = self.runs.pop(key, None)
         if key in self._order:
             self._order.remove(key)
+        for d in (self._unsaved, self._backoff, self.stalls, self.broken):
+            d.pop(key, None)
         mine = [f for f, (p, _) in self._futures.items() if p.run == key]
         for f in mine:
             piece, positions = self._futures.pop(f)
             self._undelivered(piece, positions)
-        for claims in self._claims.values():
+        for k, claims in list(self._claims.items()):
+            if claims[0][0].run == key:  # no task of it will deliver: the waiters go again
+                del self._claims[k]
+                for p, _ in claims[1:]:
+                    if p.run != key:
+                        self._requeue(p)
             for p, _ in claims:
                 if p.run == key:
                     p.dead = True
@@ -554,7 +588,12 @@ class ChunkPool:
 
     def _fill(self) -> None:
         while len(self._futures) < self.window and self._order:
-            key = self._order.popleft()
+            # A run whose chunks wait to be stored, or that cannot go on, takes no new ones.
+            key = next((k for k in self._order if k not in self._unsaved
+                        and k not in self.broken), None)  # fmt: skip
+            if key is None:
+                return
+            self._order.remove(key)
             run = self.runs[key]
             if not run.pieces:
                 continue  # out of the rotation until removed or complete
@@ -644,24 +683,75 @@ class ChunkPool:
         if run is None or piece.dead:
             return
         piece.dead = True  # delivered: nothing more goes to it
-        run.in_flight -= 1
-        run.shared += piece.shared
         records = [dict(r) for r in piece.records if r is not None]
-        run.finished(piece.start, piece.stop, records, piece.retry, piece.keys)
-        if run.pieces and piece.run not in self._order:  # an adaptive run asked for more
-            self._order.append(piece.run)
+        # Stored in the order they completed: behind any that wait for a retry.
+        self._unsaved.setdefault(piece.run, deque()).append((piece, records))
+        backoff = self._backoff.get(piece.run)
+        if backoff is None or backoff.due():
+            self._flush(piece.run)
+
+    def _flush(self, key: str) -> None:
+        """Store the chunks of run ``key`` that wait to be, oldest first, until one fails."""
+        waiting = self._unsaved.get(key)
+        run = self.runs.get(key)
+        while waiting and run is not None and key not in self.broken:
+            piece, records = waiting[0]
+            try:
+                run.finished(piece.start, piece.stop, records, piece.retry, piece.keys)
+            except Exception as exc:  # noqa: BLE001 - kept, retried, or the run is broken
+                if not self.hold:
+                    waiting.popleft()
+                    raise
+                if isinstance(exc, FenceLost) or not is_transient(exc):
+                    self.broken[key] = exc
+                    return
+                self.stalls[key] = exc
+                self._backoff.setdefault(key, Backoff(cap=self.backoff_cap)).failed()
+                return
+            waiting.popleft()
+            run.in_flight -= 1
+            run.shared += piece.shared
+            if key in self._backoff:
+                self._backoff[key].ok()
+            self.stalls.pop(key, None)
+        if not waiting:
+            self._unsaved.pop(key, None)
+            if run is not None and run.pieces and key not in self._order:
+                self._order.append(key)  # an adaptive run asked for more, or a stall ended
+
+    def retry_now(self, key: str) -> None:
+        """Store run ``key``'s waiting chunks at the next step, not after its backoff (the
+        caller has seen the resource come back)."""
+        if key in self._backoff:
+            self._backoff[key].next_at = 0.0
+
+    def _retry_unsaved(self) -> float | None:
+        """Store again the chunks whose retry is due; seconds until the next retry (if any)."""
+        nxt: float | None = None
+        for key in list(self._unsaved):
+            b = self._backoff.get(key)
+            if b is None or b.due():
+                self._flush(key)
+            b = self._backoff.get(key)
+            if key in self._unsaved and key not in self.broken and b is not None:
+                left = max(0.0, b.next_at - b.clock())
+                nxt = left if nxt is None else min(nxt, left)
+        return nxt
 
     def _deliver(self, piece: _Piece, positions: list[int], records: list[dict[str, Any]]) -> None:
         """Records of ``positions`` of ``piece`` (its task's), to it and to their waiters."""
         for pos, rec in zip(positions, records, strict=False):
+            waiters: list[tuple[_Piece, int]] = []
+            if piece.keys is not None:
+                # The claim goes first: storing a completed chunk may fail, and a claim left
+                # behind would hold every later chunk of the same points for ever.
+                claims = self._claims.get(piece.keys[pos])
+                if claims and claims[0] == (piece, pos):
+                    del self._claims[piece.keys[pos]]
+                    waiters = claims[1:]
             self._fill_record(piece, pos, rec)
-            if piece.keys is None:
-                continue
-            claims = self._claims.get(piece.keys[pos])
-            if claims and claims[0] == (piece, pos):
-                del self._claims[piece.keys[pos]]
-                for other, opos in claims[1:]:
-                    self._fill_record(other, opos, rec)
+            for other, opos in waiters:
+                self._fill_record(other, opos, rec)
         if len(records) < len(positions):
             self._undelivered(piece, positions[len(records) :])
 
@@ -693,12 +783,19 @@ class ChunkPool:
 
     def step(self, timeout: float) -> list[str]:
         """Fill the window, wait up to ``timeout`` s, store what finished; keys of the runs
-        that are now complete."""
+        that are now complete. Never returns at once with nothing done, so that a caller's
+        loop does not spin."""
+        retry_in = self._retry_unsaved()
+        wait = timeout if retry_in is None else min(timeout, max(retry_in, 0.01))
         self._fill()
         if not self._futures:
-            return [k for k, r in self.runs.items() if r.complete]
+            ready = [k for k, r in self.runs.items() if r.complete and k not in self.broken]
+            if not ready:
+                self._wake.wait(wait)
+                self._wake.clear()
+            return ready
         if not any(f.done() for f in self._futures):
-            self._wake.wait(timeout)
+            self._wake.wait(wait)
         # A completion after this clear sets it again; one before is in the scan below (and
         # the next step's check above).
         self._wake.clear()
@@ -722,7 +819,7 @@ class ChunkPool:
             self._deliver(piece, positions, records)
             fut.release()
         self._fill()
-        return [k for k, r in self.runs.items() if r.complete]
+        return [k for k, r in self.runs.items() if r.complete and k not in self.broken]
 
 
 def run_study(

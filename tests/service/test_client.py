@@ -26,7 +26,8 @@ def _client(statuses: list[str], total: int = 10) -> Client:
         done = total if status == "finished" else total // 2
         return httpx.Response(200, json={
             "id": "abc12345", "name": "mock", "status": status, "points_total": total,
-            "points_done": done, "error": "boom" if status == "failed" else None,
+            "points_done": done,
+            "error": {"failed": "boom", "waiting": "the disk refused a write"}.get(status),
         })  # fmt: skip
 
     return Client("http://mock", token="", transport=httpx.MockTransport(handler))
@@ -38,6 +39,14 @@ def test_wait_draws_a_progress_line_on_stderr(capsys: pytest.CaptureFixture[str]
     err = capsys.readouterr().err
     assert "mock:  50.0% 5/10 pt [running]" in err
     assert err.endswith("mock: 100.0% 10/10 pt [finished]\n")
+
+
+def test_wait_goes_on_through_an_outage_and_shows_why_it_waits(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    rec = _client(["running", "waiting", "running", "finished"]).wait("abc12345", poll=0)
+    assert rec["status"] == "finished"
+    assert "5/10 pt [waiting: the disk refused a write]" in capsys.readouterr().err
 
 
 def test_wait_feeds_a_progress_callable_or_nothing(capsys: pytest.CaptureFixture[str]) -> None:

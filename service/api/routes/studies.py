@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, HTTPException, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
-from service.api.catalogue import STATUSES
+from service.api.catalogue import RUNNING, STATUSES
 from service.api.deps import CatalogueDep, JobsDep, SettingsDep, StudyId, study_or_404
 from service.api.jobs import StateError
 from service.api.schemas import ErrorOut, StudyList, StudyOut
@@ -30,7 +30,7 @@ def study_out(rec: dict[str, Any], positions: dict[str, int] | None = None) -> d
     """
     base = f"/studies/{rec['id']}"
     total, done, wall = rec["points_total"], rec["points_done"], rec["wall_s"]
-    running = rec["status"] == "running"
+    running = rec["status"] in RUNNING
     # The rate over every run of the study (its running time, resumed runs included).
     rate = done / wall if running and wall and done else None
     out = {
@@ -56,6 +56,10 @@ def study_out(rec: dict[str, Any], positions: dict[str, int] | None = None) -> d
 
 
 _HINTS = {
+    "waiting": (
+        "waiting (see error): the catalogue database or the disk is away; its finished work is "
+        "kept and it goes on by itself when they are back"
+    ),
     "cancelled": (
         "cancelled: POST /studies/{id}/resume (or submit it again with ?resume=true) continues "
         "from its finished chunks"

@@ -15,6 +15,7 @@ import yaml
 from fastapi.testclient import TestClient
 
 from service.api.app import create_app
+from service.api.catalogue import STATUSES
 from service.api.settings import Settings
 from service.client import (
     Client,
@@ -70,7 +71,7 @@ def test_health_needs_no_token_and_reports_versions(make_app: Any) -> None:
         assert r.status_code == 200
         body = r.json()
         assert body["status"] == "ok" and body["solver_version"]
-        assert set(body["studies"]) == {"queued", "running", "finished", "failed", "cancelled"}
+        assert set(body["studies"]) == set(STATUSES)
 
 
 def test_submit_is_idempotent_json_and_yaml(make_app: Any) -> None:

@@ -43,6 +43,7 @@ def test_catalogue_from_before_the_unsettled_count_is_upgraded(catalogue_url: st
         conn.execute(text("ALTER TABLE studies DROP COLUMN points_reused"))
         for table in ("study_points", "points", "solvers"):
             conn.execute(text(f"DROP TABLE {table}"))
+        conn.execute(text("ALTER TABLE leases DROP COLUMN generation"))  # and 0003's
         conn.execute(text("DROP TABLE alembic_version"))
     assert "points_unsettled" not in {c["name"] for c in inspect(engine).get_columns("studies")}
     engine.dispose()

@@ -112,7 +112,7 @@ def test_a_study_whose_chunks_are_found_damaged_at_collation_is_queued_again(
     tmp_path: Path,
 ) -> None:
     from service.api.catalogue import Catalogue
-    from service.api.jobs import JobManager, _Active
+    from service.api.jobs import JobManager, _Active, lease_name
     from service.api.settings import Settings
     from service.studies.chunks import MissingPoints
     from service.studies.runner import StudyRun
@@ -132,7 +132,10 @@ def test_a_study_whose_chunks_are_found_damaged_at_collation_is_queued_again(
         _truncate(run.store.chunk_dir / "6-12.npz")
         with pytest.raises(MissingPoints):  # what the runner thread meets
             run.store.collect()
-        jobs._active[study.id] = _Active(study, run, 0.0)
+        token = cat.acquire_fenced(lease_name(study.id), jobs.instance, 60.0)
+        assert token is not None  # the runner holds the study's lease, as when it runs it
+        jobs._hold(study.id, token)
+        jobs._active[study.id] = _Active(study, run, 0.0, jobs._fence(study.id, token))
         jobs._finish(study.id)
         rec = cat.get_study(study.id)
         assert rec is not None and rec["status"] == "queued" and rec["error"] is None

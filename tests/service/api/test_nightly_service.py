@@ -23,7 +23,7 @@ from fastapi.testclient import TestClient
 
 from service.api.app import create_app
 from service.api.catalogue import Catalogue
-from service.api.nightly import NightlyBusy, NightlyRunner
+from service.api.nightly import SUITE_LEASE, NightlyBusy, NightlyRunner
 from service.api.schedule import record_run
 from service.api.server import ServerThread
 from service.api.settings import Settings
@@ -263,6 +263,25 @@ def test_start_refuses_a_second_run_and_an_idle_queue(
     jobs.running = False
     with pytest.raises(NightlyBusy, match="job runner is not running"):
         NightlyRunner(s, catalogue, jobs).start()  # type: ignore[arg-type]
+
+
+def test_one_nightly_run_at_a_time_across_service_processes(
+    made: Path, tmp_path: Path, catalogue: Catalogue
+) -> None:
+    s = Settings(data_dir=tmp_path / "data", nightly_dir=made / "nightly")
+    jobs = FakeJobs(catalogue, "finished")
+    runner = NightlyRunner(s, catalogue, jobs, poll=0.01)  # type: ignore[arg-type]
+    # another process (another host) runs the suite now
+    assert catalogue.acquire_lease(SUITE_LEASE, "elsewhere:1:abcd", 60)
+    with pytest.raises(NightlyBusy, match="another service process"):
+        runner.start()
+    with pytest.raises(NightlyBusy, match="another service process"):
+        runner.run()
+    assert jobs.submitted == [] and not runner.busy
+    assert catalogue.list_regressions()[1] == 0  # nothing recorded by the refused start
+    catalogue.release_lease(SUITE_LEASE, "elsewhere:1:abcd")
+    runner.run()  # now it may; and gives the lease back when it ends
+    assert len(jobs.submitted) == 2 and catalogue.lease_free(SUITE_LEASE)
 
 
 def test_the_cron_schedule_runs_the_services_runner(tmp_path: Path) -> None:

@@ -8,7 +8,9 @@
 
 (function () {
   const TOKEN_KEY = "impactcell.token";
-  const STATUSES = ["queued", "running", "finished", "failed", "cancelled"];
+  const STATUSES = ["queued", "running", "waiting", "finished", "failed", "cancelled"];
+  // A study a process runs or will run (cancel applies; the page keeps polling it).
+  const ACTIVE = ["queued", "running", "waiting"];
   const POLL_MS = 2000;
   const C = window.ImpactCharts;
   const fmt = C.fmt;
@@ -364,7 +366,7 @@
       rec = r;
       h1.textContent = r.name;
       setTitle(r.name);
-      const active = r.status === "queued" || r.status === "running";
+      const active = ACTIVE.includes(r.status);
       cancelBtn.disabled = !active;
       resumeBtn.disabled = !(r.status === "cancelled" || r.status === "failed");
       const pct = Math.round(r.progress * 100);
@@ -429,7 +431,7 @@
           if (!ctl) ctl = await setupResults(gen, id, results, () => rec);
           else ctl.redraw();
         }
-        if (r.status === "queued" || r.status === "running" || charted !== r.points_done) {
+        if (ACTIVE.includes(r.status) || charted !== r.points_done) {
           timer = setTimeout(poll, document.hidden ? POLL_MS * 5 : POLL_MS);
         }
       } catch (e) {
