@@ -23,6 +23,7 @@ from service.analysis.selection import (
     slice_csv,
     slice_json,
 )
+from service.api.admission import heavy
 from service.api.catalogue import Catalogue
 from service.api.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.api.schemas import ErrorOut
@@ -255,6 +256,7 @@ def _check_size(study_id: str, what: str, dims: dict[str, int], ds: xr.Dataset) 
     },
     response_class=Response,
 )
+@heavy
 def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -> Response:
     """The results as NetCDF; for unfinished studies, from finished chunks (``partial = 1``).
 
@@ -286,6 +288,7 @@ def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "the slice"},
     },
 )
+@heavy
 def data(
     request: Request,
     study_id: StudyId,
@@ -318,6 +321,7 @@ def data(
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "map or edges"},
     },
 )
+@heavy
 def bandgap(
     request: Request,
     study_id: StudyId,
@@ -399,6 +403,7 @@ def _hysteresis(
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "the branches"},
     },
 )
+@heavy
 def hysteresis(
     request: Request,
     study_id: StudyId,
@@ -442,6 +447,7 @@ def hysteresis(
     },
     response_class=Response,
 )
+@heavy
 def plot(
     request: Request,
     study_id: StudyId,
