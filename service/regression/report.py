@@ -70,19 +70,23 @@ class NightlyReport:
         return f"{head}: {len(bad)} not ok: " + "; ".join(parts)
 
     def to_json(self) -> dict[str, Any]:
-        """JSON-ready dict: the run, then one entry per study with every change."""
-        return {
-            "ok": self.ok,
-            "summary": self.summary(),
-            "started": self.started,
-            "wall_s": self.wall_s,
-            "mode": self.mode,
-            "suite": self.suite,
-            "baselines": self.baselines,
-            "update_baseline": self.update_baseline,
-            "notes": self.notes,
-            "studies": [s.to_json() for s in self.studies],
-        }
+        """JSON-ready dict: the run, then one entry per study with every change; paths as in
+        the markdown report (relative, no server paths)."""
+        return map_text(
+            self._relative_paths(),
+            {
+                "ok": self.ok,
+                "summary": self.summary(),
+                "started": self.started,
+                "wall_s": self.wall_s,
+                "mode": self.mode,
+                "suite": self.suite,
+                "baselines": self.baselines,
+                "update_baseline": self.update_baseline,
+                "notes": self.notes,
+                "studies": [s.to_json() for s in self.studies],
+            },
+        )
 
     def to_markdown(self) -> str:
         """A markdown report: a summary table, then every moved point and failed check."""
@@ -199,3 +203,14 @@ class NightlyReport:
         atomic_write(pj, lambda p: p.write_text(text_json, encoding="utf-8"))
         atomic_write(pm, lambda p: p.write_text(text_md, encoding="utf-8"))
         return pj, pm
+
+
+def map_text(fn: Callable[[str], str], data: Any) -> Any:
+    """``data`` with ``fn`` applied to every string in it (keys too)."""
+    if isinstance(data, str):
+        return fn(data)
+    if isinstance(data, dict):
+        return {map_text(fn, k): map_text(fn, v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [map_text(fn, v) for v in data]
+    return data
