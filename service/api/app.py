@@ -219,7 +219,7 @@ def _describe_errors(app: FastAPI) -> None:
             components.pop(name, None)
         components.update(_error_schemas())
         ref = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorOut"}}}
-        heavy_ops = {id(r.endpoint) for r in app.routes if _is_heavy(r)}
+        heavy_ops = {id(r.endpoint) for r in _flat_routes(app.routes) if _is_heavy(r)}
         for path, ops in schema.get("paths", {}).items():
             for method, op in ops.items():
                 route = _route_of(app, path, method)
@@ -252,8 +252,18 @@ def _is_heavy(route: Any) -> bool:
     return getattr(getattr(route, "endpoint", None), "__heavy__", False)
 
 
+def _flat_routes(routes: list[Any]) -> list[Any]:
+    """Every route, those of included routers too (held apart by newer FastAPI versions; the
+    routers here are included without a prefix of their own, so their paths are complete)."""
+    out = []
+    for r in routes:
+        inner = getattr(getattr(r, "original_router", None), "routes", None)
+        out += _flat_routes(inner) if inner is not None else [r]
+    return out
+
+
 def _route_of(app: FastAPI, path: str, method: str) -> Any:
-    for r in app.routes:
+    for r in _flat_routes(app.routes):
         if getattr(r, "path", None) == path and method.upper() in getattr(r, "methods", ()):
             return r
     return None

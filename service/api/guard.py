@@ -18,13 +18,14 @@ service as that page's own origin. :class:`Guard`, the outermost middleware, ref
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Awaitable, Callable
 from typing import Any
 from urllib.parse import parse_qsl
 
 from service.api.settings import Settings
 
-__all__ = ["STATE_CHANGING", "STUDY_TYPES", "Guard", "host_allowed"]
+__all__ = ["STATE_CHANGING", "STUDY_TYPES", "Guard", "hide_paths", "host_allowed"]
 
 #: Methods that change state: they need a JSON or YAML body type and a same-origin page.
 STATE_CHANGING = frozenset({"POST", "PUT", "PATCH", "DELETE"})
@@ -34,6 +35,19 @@ STUDY_TYPES = ("application/json", "application/yaml", "application/x-yaml", "te
                "text/x-yaml")  # fmt: skip
 
 ASGIApp = Callable[[dict, Callable, Callable], Awaitable[None]]
+
+# An absolute POSIX path of two or more parts: not a URL's (no "//" or word before it), not
+# one of the API's own routes (hints name them: POST /studies/{id}/resume).
+_ABS_PATH = re.compile(
+    r"(?<![\w/.:-])/(?!(?:studies|regressions|points|health|docs|ui)\b)(?:[\w.@+-]+/)+"
+    r"([\w.@+-]+)"
+)
+
+
+def hide_paths(text: str | None) -> str | None:
+    """``text`` with every absolute server path shown by its last part (a file's name): error
+    messages the service stores and answers must not tell where its files are."""
+    return None if text is None else _ABS_PATH.sub(r"\1", text)
 
 
 def _hostname(host: str) -> str:
