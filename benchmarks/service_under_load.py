@@ -34,9 +34,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
-
 HERE = Path(__file__).resolve().parents[1]
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+# first: pins the CPU target (worker/cpu.py) before dask loads numpy, so that the cluster's
+# workers compute as the service expects
+import worker  # noqa: E402, F401
+
+# isort: split
+import httpx  # noqa: E402
+
 FAST = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}
 SLOW = {"steps_per_period": 2048, "max_periods": 100, "periodicity_tol": 1e-13}
 HEAVY = {"method": "euler", "steps_per_period": 65_536, "max_periods": 10_000,

@@ -63,6 +63,7 @@ def _open_catalogue(settings: Any, shown: str) -> None:
     from service.api.migrate import CatalogueError
     from service.cli.db import catalogue_error
 
+    settings.data_dir.mkdir(parents=True, exist_ok=True)  # the default catalogue's folder
     try:
         Catalogue(settings.catalogue_url()).close()
     except ArgumentError:
