@@ -203,7 +203,9 @@ def plots(url: str, n: int = 50) -> dict[str, Any]:
     for t in threads:
         t.start()
     start.wait()
+    began = time.monotonic()
     health: list[float] = []
+    worst = (0.0, 0.0)  # the slowest /health answer, and when it was asked (s after the start)
     while any(t.is_alive() for t in threads):
         t0 = time.monotonic()
         try:
@@ -211,6 +213,7 @@ def plots(url: str, n: int = 50) -> dict[str, Any]:
             health.append(time.monotonic() - t0)
         except httpx.HTTPError:
             health.append(120.0)
+        worst = max(worst, (health[-1], t0 - began))
         time.sleep(0.1)
     for t in threads:
         t.join()
@@ -224,6 +227,7 @@ def plots(url: str, n: int = 50) -> dict[str, Any]:
         "503_with_retry_after": sum(1 for c, ra, _ in answers if c == 503 and ra),
         "slowest_plot_s": round(max(s for *_, s in answers), 2),
         "slowest_health_s": round(health[-1], 3) if health else None,
+        "slowest_health_asked_at_s": round(worst[1], 2),
         "median_health_s": round(health[len(health) // 2], 3) if health else None,
         "health_samples": len(health),
     }

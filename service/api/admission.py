@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import inspect
+import logging
 import math
 import threading
 import time
@@ -26,6 +27,7 @@ from fastapi import HTTPException, Request
 __all__ = ["Admission", "heavy"]
 
 F = TypeVar("F", bound=Callable[..., Any])
+log = logging.getLogger("impactcell.admission")
 _REQUEST = "_admission_request"  # the parameter heavy() adds to find the app's pool
 
 
@@ -75,6 +77,18 @@ class Admission:
             return fn()
         finally:
             self._mean_s = 0.8 * self._mean_s + 0.2 * (time.monotonic() - t0)
+
+    def prepare(self, fn: Callable[[], Any]) -> None:
+        """Run ``fn`` in the pool ahead of the requests (a warm-up: imports, caches); its
+        errors are logged, never raised."""
+
+        def run() -> None:
+            try:
+                fn()
+            except Exception:  # a warm-up that fails leaves the first request to pay
+                log.exception("warm-up of the heavy-read pool failed")
+
+        self._pool.submit(run)
 
     def close(self) -> None:
         """Stop taking work; requests in the pool finish."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 import uuid
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
@@ -103,6 +104,11 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
         jobs = JobManager(settings, catalogue)
         admission = Admission(settings.heavy_pool_size(), settings.heavy_queue)
         app.state.admission = admission
+        # Heavy reads hold the GIL in pure Python (matplotlib, xarray): every light request
+        # (/health) waits a switch interval at each handoff, 5 ms by default; 1 ms keeps it
+        # quick while the pool is busy, at a small cost to the heavy reads.
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
+        admission.prepare(_warm_plots)
         app.state.settings = settings
         app.state.catalogue = catalogue
         app.state.jobs = jobs
@@ -190,6 +196,23 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
         )  # fmt: skip
 
     return app
+
+
+def _warm_plots() -> None:
+    """Import matplotlib and draw a labelled figure once, in the heavy-read pool at start: the
+    first plots would otherwise do it while holding the GIL for seconds (fonts, caches),
+    holding up every other request meanwhile."""
+    import io
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    import service.analysis.plots  # noqa: F401
+
+    fig = Figure(figsize=(1, 1))
+    FigureCanvasAgg(fig)
+    fig.add_subplot().set_title("γ_r")
+    fig.savefig(io.BytesIO(), format="png")
 
 
 #: Responses every operation may give besides its own (the guard's and the admission pool's).
