@@ -199,20 +199,10 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
 
 
 def _warm_plots() -> None:
-    """Import matplotlib and draw a labelled figure once, in the heavy-read pool at start: the
-    first plots would otherwise do it while holding the GIL for seconds (fonts, caches),
-    holding up every other request meanwhile."""
-    import io
+    """Draw a figure once in the heavy-read pool at start (:func:`plots.warm_up`)."""
+    from service.analysis import plots
 
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    import service.analysis.plots  # noqa: F401
-
-    fig = Figure(figsize=(1, 1))
-    FigureCanvasAgg(fig)
-    fig.add_subplot().set_title("γ_r")
-    fig.savefig(io.BytesIO(), format="png")
+    plots.warm_up()
 
 
 #: Responses every operation may give besides its own (the guard's and the admission pool's).

@@ -25,6 +25,7 @@ def _run(args: argparse.Namespace, action: Any) -> int:
     from sqlalchemy.exc import SQLAlchemyError
 
     from service.api.migrate import CatalogueError
+    from service.cli.common import catalogue_error
     from service.cli.service import _without_password
 
     settings = _settings(args)
@@ -34,17 +35,6 @@ def _run(args: argparse.Namespace, action: Any) -> int:
     except (CatalogueError, SQLAlchemyError) as exc:
         print(f"impactcell: error: {catalogue_error(exc, shown)}", file=sys.stderr)
         return 1
-
-
-def catalogue_error(exc: Exception, shown: str) -> str:
-    """One line for an error opening the catalogue at ``shown`` (its URL, password hidden)."""
-    from service.api.migrate import CatalogueDriverError
-
-    if isinstance(exc, CatalogueDriverError):  # names the URL itself
-        return str(exc)
-    # unreachable server, bad credentials, unknown driver, a URL that is none, ...
-    reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
-    return f"catalogue {shown}: {reason[0] if reason else type(exc).__name__}"
 
 
 def _sqlite_file_missing(url: str) -> str | None:

@@ -61,7 +61,7 @@ def _open_catalogue(settings: Any, shown: str) -> None:
 
     from service.api.catalogue import Catalogue
     from service.api.migrate import CatalogueError
-    from service.cli.db import catalogue_error
+    from service.cli.common import catalogue_error
 
     settings.data_dir.mkdir(parents=True, exist_ok=True)  # the default catalogue's folder
     try:

@@ -70,23 +70,20 @@ class NightlyReport:
         return f"{head}: {len(bad)} not ok: " + "; ".join(parts)
 
     def to_json(self) -> dict[str, Any]:
-        """JSON-ready dict: the run, then one entry per study with every change; paths as in
-        the markdown report (relative, no server paths)."""
-        return map_text(
-            self._relative_paths(),
-            {
-                "ok": self.ok,
-                "summary": self.summary(),
-                "started": self.started,
-                "wall_s": self.wall_s,
-                "mode": self.mode,
-                "suite": self.suite,
-                "baselines": self.baselines,
-                "update_baseline": self.update_baseline,
-                "notes": self.notes,
-                "studies": [s.to_json() for s in self.studies],
-            },
-        )
+        """JSON-ready dict: the run, then one entry per study with every change (paths as they
+        are: tools read it on the machine that ran it; the service shows them relative)."""
+        return {
+            "ok": self.ok,
+            "summary": self.summary(),
+            "started": self.started,
+            "wall_s": self.wall_s,
+            "mode": self.mode,
+            "suite": self.suite,
+            "baselines": self.baselines,
+            "update_baseline": self.update_baseline,
+            "notes": self.notes,
+            "studies": [s.to_json() for s in self.studies],
+        }
 
     def to_markdown(self) -> str:
         """A markdown report: a summary table, then every moved point and failed check."""

@@ -243,16 +243,22 @@ def test_stored_errors_show_file_names_not_server_paths() -> None:
 def test_regression_reports_show_no_server_paths(tc: TestClient) -> None:
     import datetime as dt
 
+    from service.regression.suite import suite_folders
+
     data = str(tc.app.state.settings.data_dir.resolve())
+    suite, baselines = suite_folders()  # the shipped suite: the service's default
     cat = tc.app.state.catalogue
     reg = cat.add_finished_regression(
         "cron", started_at=dt.datetime.now(dt.UTC), ok=False, summary="1 study",
-        report={"suite": "x", "studies": [{"results": f"{data}/nightly/run/tiny.nc"}]},
+        report={"suite": str(suite), "baselines": str(baselines),
+                "studies": [{"results": f"{data}/nightly/run/tiny.nc"}]},
         markdown=f"see {data}/nightly/run",
     )  # fmt: skip
     r = tc.get(f"/regressions/{reg}")
-    assert r.status_code == 200 and data not in r.text
-    assert r.json()["report"]["studies"][0]["results"] == "<data>/nightly/run/tiny.nc"
+    assert r.status_code == 200 and data not in r.text and str(suite) not in r.text
+    report = r.json()["report"]
+    assert report["studies"][0]["results"] == "<data>/nightly/run/tiny.nc"
+    assert (report["suite"], report["baselines"]) == ("./nightly", "./baselines")
     md = tc.get(f"/regressions/{reg}?format=markdown").text
     assert md == "see <data>/nightly/run"
 
