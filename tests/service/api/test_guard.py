@@ -153,6 +153,18 @@ def test_nul_characters_are_422_naming_the_field(tc: TestClient) -> None:
     assert tc.get("/studies").json()["total"] == 0 and tc.get("/regressions").json()["total"] == 0
 
 
+def test_nul_characters_never_reach_the_database(tmp_path: Path, catalogue_url: str) -> None:
+    """On SQLite and PostgreSQL (which refuses NUL in text: a 500 with the SQL before)."""
+    s = Settings(data_dir=tmp_path / "data", database_url=catalogue_url)
+    with TestClient(create_app(s, run_jobs=False), raise_server_exceptions=False) as tc:
+        for url in ("/studies?name=%00", "/points?method=a%00&limit=1", "/points?version=%00"):
+            r = tc.get(url)
+            assert r.status_code == 422 and "NUL" in r.json()["detail"], (url, r.text)
+        r = tc.post("/studies", json=tiny_study(name="x\x00"))
+        assert r.status_code == 422 and r.json()["problems"][0]["path"] == "name"
+        assert tc.get("/studies?name=x").json()["total"] == 0
+
+
 def test_numbers_and_booleans_are_not_text(tc: TestClient) -> None:
     d = tiny_study()
     d["grid"]["theta"] = "0.3"
