@@ -66,10 +66,20 @@ class Admission:
                 )
             self._admitted += 1
         try:
-            return await asyncio.wrap_future(self._pool.submit(self._timed, fn))
-        finally:
-            with self._lock:
-                self._admitted -= 1
+            future = self._pool.submit(self._timed, fn)
+        except RuntimeError:  # the pool is shut down: the service is stopping
+            self._release(None)
+            raise HTTPException(
+                503, "the service is stopping", headers={"Retry-After": "5"}
+            ) from None
+        # Released when the work ends, not when the request does: a client that hangs up
+        # does not stop its work in the pool, which still counts.
+        future.add_done_callback(self._release)
+        return await asyncio.wrap_future(future)
+
+    def _release(self, _future: Any) -> None:
+        with self._lock:
+            self._admitted -= 1
 
     def _timed(self, fn: Callable[[], Any]) -> Any:
         t0 = time.monotonic()

@@ -14,7 +14,7 @@ from service.studies.chunks import atomic_write
 from service.studies.dataset import json_text
 from service.studies.variables import OUTCOMES
 
-__all__ = ["NightlyReport"]
+__all__ = ["NightlyReport", "map_text"]
 
 
 def _fmt(x: Any, digits: int = 9) -> str:
