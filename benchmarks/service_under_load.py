@@ -8,12 +8,15 @@ Measures what a user feels (issue 13):
   until a 4-point study submitted right after the cancel is finished (the cluster is free), and
   whether the cancelled study wrote anything after the cancel;
 - ``timeseries``: a ``/timeseries`` recomputation of such a point: the slowest ``/health`` and
-  ``GET /studies`` answer while it runs, and how the request ends.
+  ``GET /studies`` answer while it runs, and how the request ends;
+- ``plots``: 50 concurrent plot requests (PNG and SVG, transmittance and bandgap) of a finished
+  96-point study: the slowest and the median ``/health`` answer meanwhile, the plots' statuses
+  (200, or 503 with ``Retry-After`` from the heavy-read pool) and the slowest plot.
 
-Run: ``python benchmarks/service_under_load.py [--repo PATH] [--out FILE]``. ``--repo`` runs the
-server of another checkout (e.g. a ``git worktree`` of an older commit) for before/after
-figures; the client side speaks both APIs (``POST /studies/{id}/cancel`` or the older
-``DELETE``).
+Run: ``python benchmarks/service_under_load.py [--repo PATH] [--out FILE] [--only NAME ...]``.
+``--repo`` runs the server of another checkout (e.g. a ``git worktree`` of an older commit) for
+before/after figures; the client side speaks both APIs (``POST /studies/{id}/cancel`` or the
+older ``DELETE``).
 """
 
 from __future__ import annotations
@@ -31,9 +34,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-import httpx
-
 HERE = Path(__file__).resolve().parents[1]
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+# first: pins the CPU target (worker/cpu.py) before dask loads numpy, so that the cluster's
+# workers compute as the service expects
+import worker  # noqa: E402, F401
+
+# isort: split
+import httpx  # noqa: E402
+
 FAST = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e-5, "window": 5}
 SLOW = {"steps_per_period": 2048, "max_periods": 100, "periodicity_tol": 1e-13}
 HEAVY = {"method": "euler", "steps_per_period": 65_536, "max_periods": 10_000,
@@ -91,10 +102,13 @@ def wait(url: str, sid: str, until: Any, timeout: float = 900) -> dict[str, Any]
         time.sleep(0.1)
 
 
+JSON_BODY = {"Content-Type": "application/json"}  # every state change declares a body type
+
+
 def cancel(url: str, sid: str) -> None:
-    r = httpx.post(f"{url}/studies/{sid}/cancel", timeout=120)
+    r = httpx.post(f"{url}/studies/{sid}/cancel", headers=JSON_BODY, timeout=120)
     if r.status_code in (404, 405):  # the older API cancelled with DELETE
-        httpx.delete(f"{url}/studies/{sid}", timeout=120)
+        httpx.delete(f"{url}/studies/{sid}", headers=JSON_BODY, timeout=120)
 
 
 def chunks(data: Path, sid: str) -> int:
@@ -164,10 +178,77 @@ def timeseries(url: str) -> dict[str, Any]:
     return {"slowest_health_and_list_s": round(slowest, 2), **out}
 
 
+def plots(url: str, n: int = 50) -> dict[str, Any]:
+    done = httpx.post(f"{url}/studies", json=study("plots", 32, [0.1, 0.3, 0.5], FAST)).json()
+    wait(url, done["id"], lambda r: r["status"] == "finished")
+    kinds = [("transmittance", "png"), ("bandgap", "png"), ("transmittance", "svg"),
+             ("bandgap", "svg")]  # fmt: skip
+    answers: list[tuple[int, bool, float]] = []
+    lock = threading.Lock()
+    start = threading.Barrier(n + 1)
+    # Clients made before the burst: httpx.get makes one per call, with an SSL context whose
+    # set-up holds this process's GIL, and 50 at once would slow the prober here, not the
+    # service. The prober has a client of its own.
+    many = httpx.Client(limits=httpx.Limits(max_connections=n), timeout=600)
+    probe = httpx.Client(timeout=120)
+
+    def plot(i: int) -> None:
+        kind, fmt = kinds[i % len(kinds)]
+        start.wait()
+        t0 = time.monotonic()
+        try:
+            r = many.get(f"{url}/studies/{done['id']}/plots/{kind}.{fmt}")
+            got = (r.status_code, "retry-after" in r.headers, time.monotonic() - t0)
+        except httpx.HTTPError:
+            got = (0, False, time.monotonic() - t0)
+        with lock:
+            answers.append(got)
+
+    threads = [threading.Thread(target=plot, args=(i,)) for i in range(n)]
+    for t in threads:
+        t.start()
+    start.wait()
+    began = time.monotonic()
+    health: list[float] = []
+    worst = (0.0, 0.0)  # the slowest /health answer, and when it was asked (s after the start)
+    while any(t.is_alive() for t in threads):
+        t0 = time.monotonic()
+        try:
+            probe.get(f"{url}/health")
+            health.append(time.monotonic() - t0)
+        except httpx.HTTPError:
+            health.append(120.0)
+        worst = max(worst, (health[-1], t0 - began))
+        time.sleep(0.1)
+    for t in threads:
+        t.join()
+    many.close()
+    probe.close()
+    codes: dict[str, int] = {}
+    for code, _, _ in answers:
+        codes[str(code)] = codes.get(str(code), 0) + 1
+    health.sort()
+    return {
+        "plot_requests": n,
+        "statuses": codes,
+        "503_with_retry_after": sum(1 for c, ra, _ in answers if c == 503 and ra),
+        "slowest_plot_s": round(max(s for *_, s in answers), 2),
+        "slowest_health_s": round(health[-1], 3) if health else None,
+        "slowest_health_asked_at_s": round(worst[1], 2),
+        "median_health_s": round(health[len(health) // 2], 3) if health else None,
+        "health_samples": len(health),
+    }
+
+
+SCENARIOS = ("fair", "cancel", "timeseries", "plots")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repo", type=Path, default=HERE, help="checkout whose server runs")
     ap.add_argument("--out", type=Path, default=HERE / "benchmarks/results/service_under_load.json")
+    ap.add_argument("--only", nargs="+", choices=SCENARIOS, default=list(SCENARIOS),
+                    help="the scenarios to run (default: all)")  # fmt: skip
     args = ap.parse_args()
     from dask.distributed import LocalCluster
 
@@ -181,9 +262,18 @@ def main() -> None:
         git = ["git", "rev-parse", "--short", "HEAD"]
         rev = subprocess.run(git, cwd=args.repo, capture_output=True, text=True).stdout.strip()
         rev = rev or "unknown"
-        res = {"commit": rev, "machine": f"{platform.machine()}, {os.cpu_count()} cores",
-               "fair": fair(srv.url), "cancel": cancelled(srv.url, data),
-               "timeseries": timeseries(srv.url)}  # fmt: skip
+        res: dict[str, Any] = {
+            "commit": rev,
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+        }
+        runs = {
+            "fair": lambda: fair(srv.url),
+            "cancel": lambda: cancelled(srv.url, data),
+            "timeseries": lambda: timeseries(srv.url),
+            "plots": lambda: plots(srv.url),
+        }
+        for name in args.only:
+            res[name] = runs[name]()
     finally:
         srv.stop()
         cluster.close()

@@ -165,6 +165,11 @@ class Client:
     # ------------------------------------------------------------------ plumbing
 
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        if method != "GET":
+            # The service takes a state change only with a JSON or YAML body type (a page of
+            # another site cannot send one without asking first), also when there is no body.
+            headers = {"Content-Type": "application/json", **(kwargs.pop("headers", None) or {})}
+            kwargs["headers"] = headers
         r = self._http.request(method, path, **kwargs)
         _raise_for(r)
         _check_not_a_page(r)

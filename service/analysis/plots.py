@@ -58,6 +58,7 @@ __all__ = [
     "hysteresis_png",
     "transmittance_figure",
     "transmittance_png",
+    "warm_up",
 ]
 
 FIGSIZE: tuple[float, float] = (8.0, 5.0)  # inches
@@ -833,3 +834,13 @@ def hysteresis_png(
     """:func:`hysteresis_figure` as PNG (or SVG with ``fmt="svg"``) bytes."""
     _check_format(fmt)
     return _png(hysteresis_figure(h, fixed=fixed), fmt)
+
+
+def warm_up() -> None:
+    """Draw a small labelled PNG once: the first figure of a process loads fonts and caches
+    while holding the GIL for about a second, which the service does at start rather than
+    while requests wait."""
+    fig = Figure(figsize=(1, 1))
+    FigureCanvasAgg(fig)
+    fig.add_subplot().set_title("γ_r")
+    fig.savefig(io.BytesIO(), format="png")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import sys
+import uuid
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from typing import Any
@@ -10,15 +12,19 @@ from typing import Any
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from service.api.admission import Admission
 from service.api.catalogue import Catalogue
 from service.api.deps import require_token
+from service.api.guard import STATE_CHANGING, Guard
 from service.api.jobs import JobManager
 from service.api.nightly import NightlyRunner
 from service.api.routes import health, points, regressions, results, studies, timeseries
+from service.api.schemas import ErrorOut
 from service.api.settings import Settings
 from service.api.web import router as web_router
 from service.studies.provenance import package_version
@@ -96,6 +102,13 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         catalogue = Catalogue(settings.catalogue_url())
         jobs = JobManager(settings, catalogue)
+        admission = Admission(settings.heavy_pool_size(), settings.heavy_queue)
+        app.state.admission = admission
+        # Heavy reads hold the GIL in pure Python (matplotlib, xarray): every light request
+        # (/health) waits a switch interval at each handoff, 5 ms by default; 1 ms keeps it
+        # quick while the pool is busy, at a small cost to the heavy reads.
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
+        admission.prepare(_warm_plots)
         app.state.settings = settings
         app.state.catalogue = catalogue
         app.state.jobs = jobs
@@ -118,6 +131,7 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
             if nightly is not None:
                 nightly.stop()
             jobs.stop()
+            admission.close()
             catalogue.close()
 
     app = FastAPI(
@@ -146,6 +160,8 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
     app.include_router(points.router, dependencies=auth)
     _add_docs(app)
     app.add_middleware(BodyLimit, limit=lambda: settings.max_body_bytes)
+    app.add_middleware(Guard, settings=lambda: settings)  # outermost: before the body is read
+    _describe_errors(app)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
@@ -169,12 +185,101 @@ def create_app(settings: Settings | None = None, *, run_jobs: bool = True) -> Fa
 
     @app.exception_handler(Exception)
     async def _crash(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        # The message can hold SQL with its parameters, server paths or data: the log gets
+        # it, the response only a reference to find it there.
+        ref = uuid.uuid4().hex[:12]
+        log.exception("unhandled error %s on %s %s", ref, request.method, request.url.path)
         return JSONResponse(
-            {"detail": f"internal error: {type(exc).__name__}: {exc}"}, status_code=500
-        )
+            {"detail": f"internal error ({type(exc).__name__}); the service's log has it "
+             f"under reference {ref}"},
+            status_code=500,
+        )  # fmt: skip
 
     return app
+
+
+def _warm_plots() -> None:
+    """Draw a figure once in the heavy-read pool at start (:func:`plots.warm_up`)."""
+    from service.analysis import plots
+
+    plots.warm_up()
+
+
+#: Responses every operation may give besides its own (the guard's and the admission pool's).
+_COMMON_ERRORS = {
+    "400": "the Host header names a host this service does not answer to",
+    "422": "invalid request: every problem, with the path of its field",
+}
+_CHANGE_ERRORS = {
+    "403": "a page of another origin tried to change state (its Origin is not allowed)",
+    "415": "no JSON or YAML Content-Type (every request that changes state needs one)",
+}
+_HEAVY_ERROR = {"503": "busy: too many heavy requests running or queued (see Retry-After)"}
+
+
+def _describe_errors(app: FastAPI) -> None:
+    """OpenAPI as the service answers: every error body is ``ErrorOut`` (FastAPI's default
+    422 schema, ``HTTPValidationError``, is not what ``_invalid`` sends), and each operation
+    lists the guard's and the admission pool's statuses."""
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is not None:
+            return app.openapi_schema
+        schema = get_openapi(title=app.title, version=app.version, summary=app.summary,
+                             description=app.description, routes=app.routes)  # fmt: skip
+        components = schema.setdefault("components", {}).setdefault("schemas", {})
+        for name in ("HTTPValidationError", "ValidationError"):
+            components.pop(name, None)
+        components.update(_error_schemas())
+        ref = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorOut"}}}
+        heavy_ops = {id(r.endpoint) for r in _flat_routes(app.routes) if _is_heavy(r)}
+        for path, ops in schema.get("paths", {}).items():
+            for method, op in ops.items():
+                route = _route_of(app, path, method)
+                extra = dict(_COMMON_ERRORS)
+                if method.upper() in STATE_CHANGING:
+                    extra.update(_CHANGE_ERRORS)
+                if route is not None and id(route.endpoint) in heavy_ops:
+                    extra.update(_HEAVY_ERROR)
+                responses = op.setdefault("responses", {})
+                for code, text in extra.items():
+                    responses.setdefault(code, {"description": text})
+                for code, resp in responses.items():
+                    if code.startswith(("4", "5")):
+                        resp["content"] = ref
+        app.openapi_schema = schema
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _error_schemas() -> dict[str, Any]:
+    from pydantic.json_schema import models_json_schema
+
+    _, defs = models_json_schema([(ErrorOut, "serialization")],
+                                 ref_template="#/components/schemas/{model}")  # fmt: skip
+    return defs["$defs"]
+
+
+def _is_heavy(route: Any) -> bool:
+    return getattr(getattr(route, "endpoint", None), "__heavy__", False)
+
+
+def _flat_routes(routes: list[Any]) -> list[Any]:
+    """Every route, those of included routers too (held apart by newer FastAPI versions; the
+    routers here are included without a prefix of their own, so their paths are complete)."""
+    out = []
+    for r in routes:
+        inner = getattr(getattr(r, "original_router", None), "routes", None)
+        out += _flat_routes(inner) if inner is not None else [r]
+    return out
+
+
+def _route_of(app: FastAPI, path: str, method: str) -> Any:
+    for r in _flat_routes(app.routes):
+        if getattr(r, "path", None) == path and method.upper() in getattr(r, "methods", ()):
+            return r
+    return None
 
 
 def _add_docs(app: FastAPI) -> None:

@@ -24,15 +24,17 @@ __all__ = [
 ]
 
 
-def _settings(request: Request) -> Settings:
+# async: attribute lookups, answered in the event loop; a sync dependency would take a trip
+# through the thread pool (and the GIL) for each, which a busy heavy-read pool makes slow.
+async def _settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def _catalogue(request: Request) -> Catalogue:
+async def _catalogue(request: Request) -> Catalogue:
     return request.app.state.catalogue
 
 
-def _jobs(request: Request) -> JobManager:
+async def _jobs(request: Request) -> JobManager:
     return request.app.state.jobs
 
 
@@ -52,7 +54,7 @@ bearer_scheme = HTTPBearer(
 )
 
 
-def require_token(
+async def require_token(
     request: Request,
     _credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer_scheme)] = None,
 ) -> None:

@@ -8,10 +8,12 @@ environment, the environment over the default) and passes its values down.
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pydantic import Field, field_validator
+from pydantic import Field, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from worker.limits import POINT_STEPS, POINT_STEPS_MAX, POINT_WALL_S, POINT_WALL_S_MAX
@@ -23,6 +25,12 @@ __all__ = ["DEFAULT_PORT", "DEFAULT_URL", "Settings", "validate_cron"]
 
 DEFAULT_PORT = 8000
 DEFAULT_URL = f"http://127.0.0.1:{DEFAULT_PORT}"
+_ORIGIN = re.compile(r"https?://[A-Za-z0-9.\-\[\]:]+/?")
+_HOST = re.compile(r"\*|(\*\.)?[A-Za-z0-9.\-]+|\[?[0-9A-Fa-f:]+\]?")
+
+
+def _split(text: str) -> list[str]:
+    return [n.strip() for n in text.split(",") if n.strip()]
 
 
 def validate_cron(expr: str) -> str:
@@ -81,8 +89,23 @@ class Settings(BaseSettings):
     # read-only) is retried with backoff from 0.5 s, doubling to at most this many seconds
     # between tries, for as long as it takes; meanwhile its study shows ``waiting``.
     outage_backoff_s: float = Field(30.0, ge=1, le=3600)
+    # Host names (comma-separated) the service answers to; others get 400, which stops DNS
+    # rebinding. Unset: the loopback names, and the address it binds if that is a specific one.
+    # "*" answers every name (only behind a proxy that checks Host itself).
+    allowed_hosts: str | None = None
+    # Origins (scheme://host[:port], comma-separated) besides the service's own whose pages
+    # may change state (POST, PUT, PATCH, DELETE); e.g. the public origin of a reverse proxy.
+    allowed_origins: str | None = None
+    # Heavy reads (plots, datasets, slices, maps, /timeseries, /points) run at most this many
+    # at once, in a pool of their own; unset: the number of CPU cores.
+    heavy_workers: int | None = Field(None, ge=1, le=256)
+    # Heavy reads waiting for the pool beyond these get 503 with Retry-After at once.
+    heavy_queue: int = Field(16, ge=0, le=10_000)
 
-    @field_validator("api_token", "database_url", "scheduler", "nightly_cron", mode="before")
+    @field_validator(
+        "api_token", "database_url", "scheduler", "nightly_cron", "allowed_hosts",
+        "allowed_origins", mode="before",
+    )  # fmt: skip
     @classmethod
     def _empty_is_unset(cls, v: object) -> object:
         # compose files pass "${VAR:-}": an empty string means "not set", not "token ''".
@@ -94,6 +117,43 @@ class Settings(BaseSettings):
         if v is None:
             return v
         return validate_cron(v)
+
+    @field_validator("allowed_hosts", "allowed_origins")
+    @classmethod
+    def _names(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v is None:
+            return v
+        names = _split(v)
+        for name in names:
+            if info.field_name == "allowed_origins" and not _ORIGIN.fullmatch(name):
+                raise ValueError(
+                    f"allowed_origins must be comma-separated origins like "
+                    f"https://impactcell.example.org or http://localhost:8000; got {name!r}"
+                )
+            if info.field_name == "allowed_hosts" and not _HOST.fullmatch(name):
+                raise ValueError(
+                    f"allowed_hosts must be comma-separated host names or addresses (no "
+                    f"scheme, no port), '*.example.org' or '*'; got {name!r}"
+                )
+        return ",".join(names)
+
+    def host_names(self) -> tuple[str, ...]:
+        """The host names the service answers to (lower case; ``*`` for any)."""
+        if self.allowed_hosts:
+            return tuple(n.lower().strip("[]") for n in _split(self.allowed_hosts))
+        names = ["localhost", "127.0.0.1", "::1"]
+        bound = self.host.strip("[]").lower()
+        if bound not in ("", "0.0.0.0", "::") and bound not in names:
+            names.append(bound)
+        return tuple(names)
+
+    def origins(self) -> tuple[str, ...]:
+        """The configured origins allowed to change state besides the service's own."""
+        return tuple(o.lower().rstrip("/") for o in _split(self.allowed_origins or ""))
+
+    def heavy_pool_size(self) -> int:
+        """How many heavy reads run at once (``heavy_workers``, default the CPU cores)."""
+        return self.heavy_workers or max(1, os.cpu_count() or 1)
 
     def point_limits(self) -> PointLimits:
         """The budget of one point."""

@@ -27,6 +27,7 @@ __all__ = [
     "Failure",
     "HelpFormatter",
     "Parser",
+    "catalogue_error",
     "check_port_free",
     "check_service_url",
     "error_exit_status",
@@ -292,3 +293,14 @@ def _reason(exc: BaseException) -> str:
     if text.startswith("[Errno"):
         text = text.split("]", 1)[-1].strip()
     return text.splitlines()[0]
+
+
+def catalogue_error(exc: Exception, shown: str) -> str:
+    """One line for an error opening the catalogue at ``shown`` (its URL, password hidden)."""
+    from service.api.migrate import CatalogueDriverError
+
+    if isinstance(exc, CatalogueDriverError):  # names the URL itself
+        return str(exc)
+    # unreachable server, bad credentials, unknown driver, a URL that is none, ...
+    reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+    return f"catalogue {shown}: {reason[0] if reason else type(exc).__name__}"

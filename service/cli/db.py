@@ -24,22 +24,16 @@ def _run(args: argparse.Namespace, action: Any) -> int:
     """``action(settings, shown_url)``, with the catalogue's errors as one line and exit 1."""
     from sqlalchemy.exc import SQLAlchemyError
 
-    from service.api.migrate import CatalogueDriverError, CatalogueError
+    from service.api.migrate import CatalogueError
+    from service.cli.common import catalogue_error
     from service.cli.service import _without_password
 
     settings = _settings(args)
     shown = _without_password(settings.catalogue_url())
     try:
         return int(action(settings, shown) or 0)
-    except CatalogueDriverError as exc:  # names the URL itself
-        print(f"impactcell: error: {exc}", file=sys.stderr)
-        return 1
-    except CatalogueError as exc:
-        print(f"impactcell: error: catalogue {shown}: {exc}", file=sys.stderr)
-        return 1
-    except SQLAlchemyError as exc:  # unreachable server, bad credentials, unknown driver, ...
-        reason = str(getattr(exc, "orig", None) or exc).strip().splitlines()[0]
-        print(f"impactcell: error: catalogue {shown}: {reason}", file=sys.stderr)
+    except (CatalogueError, SQLAlchemyError) as exc:
+        print(f"impactcell: error: {catalogue_error(exc, shown)}", file=sys.stderr)
         return 1
 
 

@@ -41,6 +41,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
         except Failure as exc:
             print(f"impactcell: warning: {exc}; studies wait until it is up", file=sys.stderr)
     catalogue = _without_password(settings.catalogue_url())
+    _open_catalogue(settings, catalogue)
     print(
         f"impactcell service on http://{settings.host}:{settings.port} "
         f"(data {settings.data_dir}, catalogue {catalogue}, "
@@ -51,6 +52,28 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port,
                 log_level=args.log_level)  # fmt: skip
     return 0
+
+
+def _open_catalogue(settings: Any, shown: str) -> None:
+    """Open (and migrate) the catalogue once before the server starts: a URL that is none or a
+    database that cannot be reached ends ``serve`` with one line (exit 2 or 1), not with the
+    server's start-up traceback."""
+    from sqlalchemy.exc import ArgumentError, SQLAlchemyError
+
+    from service.api.catalogue import Catalogue
+    from service.api.migrate import CatalogueError
+    from service.cli.common import catalogue_error
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)  # the default catalogue's folder
+    try:
+        Catalogue(settings.catalogue_url()).close()
+    except ArgumentError:
+        raise ValueError(
+            f"database URL {shown} is not one SQLAlchemy reads (e.g. "
+            "postgresql+psycopg://user:password@host:5432/name or sqlite:///path/catalogue.sqlite)"
+        ) from None
+    except (CatalogueError, SQLAlchemyError) as exc:
+        raise Failure(catalogue_error(exc, shown)) from None
 
 
 def _without_password(url: str) -> str:
@@ -190,6 +213,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     settings = settings_from_flags(
         host="127.0.0.1", port=0, data_dir=out / "data", workers=args.workers
     ).model_copy(update={"api_token": None})
+    _open_catalogue(settings, _without_password(settings.catalogue_url()))
     t0 = time.perf_counter()
     server = ServerThread(settings).start()
     print(f"service on {server.url} (embedded LocalCluster), data in {settings.data_dir}",

@@ -14,7 +14,7 @@ from service.studies.chunks import atomic_write
 from service.studies.dataset import json_text
 from service.studies.variables import OUTCOMES
 
-__all__ = ["NightlyReport"]
+__all__ = ["NightlyReport", "map_text"]
 
 
 def _fmt(x: Any, digits: int = 9) -> str:
@@ -70,7 +70,8 @@ class NightlyReport:
         return f"{head}: {len(bad)} not ok: " + "; ".join(parts)
 
     def to_json(self) -> dict[str, Any]:
-        """JSON-ready dict: the run, then one entry per study with every change."""
+        """JSON-ready dict: the run, then one entry per study with every change (paths as they
+        are: tools read it on the machine that ran it; the service shows them relative)."""
         return {
             "ok": self.ok,
             "summary": self.summary(),
@@ -199,3 +200,14 @@ class NightlyReport:
         atomic_write(pj, lambda p: p.write_text(text_json, encoding="utf-8"))
         atomic_write(pm, lambda p: p.write_text(text_md, encoding="utf-8"))
         return pj, pm
+
+
+def map_text(fn: Callable[[str], str], data: Any) -> Any:
+    """``data`` with ``fn`` applied to every string in it (keys too)."""
+    if isinstance(data, str):
+        return fn(data)
+    if isinstance(data, dict):
+        return {map_text(fn, k): map_text(fn, v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [map_text(fn, v) for v in data]
+    return data

@@ -36,6 +36,7 @@ __all__ = [
     "HugeInteger",
     "StudyFileError",
     "file_format",
+    "nul_paths",
     "parse_study_text",
     "read_amplitude_table",
     "read_study_file",
@@ -177,7 +178,34 @@ def _yaml_loader() -> type:
             return super().construct_yaml_int(node)
 
     Loader.add_constructor("tag:yaml.org,2002:int", Loader.construct_yaml_int)
+    # YAML 1.1 reads 1e-3 and 2.5e3 (no dot, or no exponent sign) as text; YAML 1.2 and JSON
+    # read numbers, and a number given as text is refused by validation.
+    Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+        list("-+0123456789."),
+    )
     return Loader
+
+
+def nul_paths(data: Any, path: str = "") -> list[str]:
+    """The paths (``grid.name``, ``items[2]``) of keys and strings in parsed data that hold a
+    NUL character: no name or value has one, and databases refuse it."""
+    out: list[str] = []
+    if isinstance(data, str):
+        return [path or "(root)"] if "\x00" in data else []
+    if isinstance(data, dict):
+        for k, v in data.items():
+            key = str(k)
+            sub = f"{path}.{key}" if path else key
+            if "\x00" in key:
+                out.append(sub.replace("\x00", "\\x00"))
+            else:
+                out += nul_paths(v, sub)
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            out += nul_paths(v, f"{path}[{i}]")
+    return out
 
 
 def _data_depth(data: Any) -> None:

@@ -52,15 +52,13 @@ MAX_AXIS_VALUES = 1_000_000
 
 
 def number(value: Any) -> Any:
-    """A study-file number as given, a numeric string as a float (YAML 1.1 reads ``1e-3``, no
-    dot, as a string), a boolean refused; whether it is finite is left to the caller."""
+    """A study-file number as given; a boolean or a string refused (``"1"`` is text, not a
+    number; the YAML reader reads ``1e-3`` as a number); whether it is finite is left to the
+    caller."""
     if isinstance(value, bool):
         raise ValueError(f"must be a number, got {value!r}")
     if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            raise ValueError(f"must be a number, got {shown(value)}") from None
+        raise ValueError(f"must be a number, got the text {shown(value)} (write it unquoted)")
     return value
 
 
@@ -84,6 +82,8 @@ Real = Annotated[float, BeforeValidator(_real)]
 def _integer(value: Any) -> Any:
     if isinstance(value, bool):
         raise ValueError(f"must be an integer, got {value!r}")
+    if isinstance(value, str):
+        raise ValueError(f"must be an integer, got the text {shown(value)} (write it unquoted)")
     if isinstance(value, float) and not math.isfinite(value):
         # inf, nan, or an integer literal too long to read (files.HugeInteger)
         raise ValueError(f"must be an integer, got {shown(value)}")

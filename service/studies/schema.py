@@ -35,9 +35,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import Field, PrivateAttr, ValidationError
+from pydantic import Field, PrivateAttr, StrictBool, ValidationError
 
-from service.studies.files import read_study_file
+from service.studies.files import nul_paths, read_study_file
 from service.studies.grid import AXIS_TAGS, Range, Real, StrictModel, axis_size, axis_values
 from service.studies.limits import DEFAULT_MAX_POINTS
 from service.studies.specs import (
@@ -94,10 +94,11 @@ class Outputs(StrictModel):
     ``peak_impulse``, ``contact_steps``, ``coarse_steps``, ``steady_period``.
     """
 
-    transmittance: bool = True
-    effective_mass: bool = True
-    response: bool = True
-    contact: bool = False
+    # Strict: "yes", "true" or 1 are not booleans (JSON and YAML have true and false).
+    transmittance: StrictBool = True
+    effective_mass: StrictBool = True
+    response: StrictBool = True
+    contact: StrictBool = False
     # Absent by default (None: ``DEFAULT_COEXISTENCE_TOL_DB``), so existing ids are unchanged.
     coexistence_tol_db: Real | None = Field(
         None,
@@ -765,6 +766,9 @@ def parse_study(data: Any, *, max_points: int | None = None, source: str = "stud
     StudyError
         Listing every problem found, each with its path.
     """
+    nul = nul_paths(data)
+    if nul:  # never part of a name or value; databases refuse it
+        raise StudyError([(p, "must not contain a NUL character") for p in nul], source)
     problems: list[tuple[str, str]] = []
     try:
         study = Study.model_validate(data)

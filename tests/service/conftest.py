@@ -16,6 +16,15 @@ from service.api.app import create_app
 from service.api.settings import Settings
 from tests.service.helpers import API_TOKEN
 
+#: The host names of the in-process tests: Starlette's TestClient sends ``Host: testserver``.
+TEST_HOSTS = "localhost,127.0.0.1,::1,testserver"
+
+
+@pytest.fixture(autouse=True)
+def _test_hosts(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Let the service answer TestClient's host name besides its default loopback names."""
+    monkeypatch.setenv("IMPACTCELL_ALLOWED_HOSTS", TEST_HOSTS)
+
 
 @pytest.fixture(scope="session")
 def dask_address() -> Iterator[str]:

@@ -34,6 +34,8 @@ __all__ = [
 
 #: The bearer token of the token-protected test app (conftest fixture ``token_client``).
 API_TOKEN = "s3cret"
+#: What a request that changes state and has no body declares (the service requires a type).
+JSON_BODY = {"Content-Type": "application/json"}
 
 # Headers that describe a body on the wire: the test client hands the body over decoded and
 # whole, so they would describe another body.

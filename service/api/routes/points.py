@@ -11,6 +11,7 @@ from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
+from service.api.admission import heavy
 from service.api.deps import CatalogueDep
 from service.api.points import FLOAT_PARAMS, MAX_PAGE, PointQuery, SqlPointStore, points_csv
 from service.api.points import points_dataset as _dataset
@@ -94,6 +95,7 @@ def _query(p: BaseModel) -> PointQuery:
         422: RESULT_ERRORS[422],
     },
 )
+@heavy
 def list_points(
     params: Annotated[PointsParams, Query()],  # type: ignore[valid-type]
     catalogue: CatalogueDep,

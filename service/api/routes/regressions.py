@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import datetime as dt
+import re
+from pathlib import Path as FilePath
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, HTTPException, Path, Query, Request, Response
 from fastapi.responses import PlainTextResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from service.api.deps import CatalogueDep, JobsDep
+from service.api.deps import CatalogueDep, JobsDep, SettingsDep
 from service.api.nightly import NightlyBusy, NightlyRunner
 from service.api.schemas import ErrorOut, RegressionList, RegressionOut
+from service.api.settings import Settings
+from service.regression.report import map_text
+from service.studies.files import nul_paths
 
 router = APIRouter(prefix="/regressions", tags=["regressions"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
@@ -66,7 +71,8 @@ def start_regression(
 class _PostedReport(BaseModel):
     """What every nightly report has (``NightlyReport.to_json``); the rest is kept as given."""
 
-    model_config = ConfigDict(extra="allow")
+    # strict: "yes" is not a boolean, 1 not a summary
+    model_config = ConfigDict(extra="allow", strict=True)
 
     ok: bool
     summary: str = Field(max_length=10_000)
@@ -76,10 +82,19 @@ class _PostedReport(BaseModel):
 class RegressionReportIn(BaseModel):
     """The report of a suite run made elsewhere, e.g. by ``impactcell nightly --url``."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
 
     report: _PostedReport
     markdown: str = ""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_nul(cls, data: Any) -> Any:
+        # never part of a report; the catalogue's database refuses it
+        nul = nul_paths(data)
+        if nul:
+            raise ValueError(f"must not contain a NUL character: {', '.join(nul[:10])}")
+        return data
 
 
 @router.post(
@@ -124,6 +139,7 @@ def record_regression(
 )
 def get_regression(
     catalogue: CatalogueDep,
+    settings: SettingsDep,
     reg_id: Annotated[int, Path(ge=1, le=2**31)],
     format: Literal["json", "markdown"] = "json",  # noqa: A002 - the query parameter's name
 ) -> Any:
@@ -131,6 +147,22 @@ def get_regression(
     rec = catalogue.get_regression(reg_id)
     if rec is None:
         raise HTTPException(404, f"no regression run with id {reg_id}")
+    rec = _without_server_paths(rec, settings)
     if format == "markdown":
         return PlainTextResponse(rec["markdown"] or "", media_type="text/markdown")
     return rec
+
+
+def _without_server_paths(rec: dict[str, Any], settings: Settings) -> dict[str, Any]:
+    """A record with the service's folders (data, suite) shown relative to themselves: reports
+    catalogued by older runs, or errors, may name them."""
+    from service.regression.suite import suite_folders
+
+    suite, _ = suite_folders(settings.nightly_dir)
+    roots = {str(settings.data_dir.resolve()): "<data>", str(FilePath(suite).resolve().parent): "."}
+    roots = {k: v for k, v in roots.items() if len(FilePath(k).parts) > 1}  # never "/" itself
+    pattern = re.compile(
+        rf"(?<![\w/.-])({'|'.join(re.escape(k) for k in sorted(roots, key=len, reverse=True))})"
+        rf"(?![\w.-])"
+    )
+    return map_text(lambda t: pattern.sub(lambda m: roots[m.group(1)], t), rec)

@@ -17,7 +17,14 @@ from fastapi.responses import FileResponse, Response
 from service.analysis import figures
 from service.analysis.bands import bandgap_csv, bandgap_json, bandgap_map
 from service.analysis.hysteresis import hysteresis_csv, hysteresis_json, hysteresis_map
-from service.analysis.selection import AnalysisError, default_view, select, slice_csv, slice_json
+from service.analysis.selection import (
+    AnalysisError,
+    default_view,
+    select,
+    slice_csv,
+    slice_json,
+)
+from service.api.admission import heavy
 from service.api.catalogue import Catalogue
 from service.api.deps import CatalogueDep, SettingsDep, StudyId, study_or_404
 from service.api.schemas import ErrorOut
@@ -290,6 +297,7 @@ def _check_size(study_id: str, what: str, dims: dict[str, int], ds: xr.Dataset) 
     },
     response_class=Response,
 )
+@heavy
 def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -> Response:
     """The results as NetCDF; for unfinished studies, from finished chunks (``partial = 1``).
 
@@ -321,6 +329,7 @@ def dataset(study_id: StudyId, settings: SettingsDep, catalogue: CatalogueDep) -
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "the slice"},
     },
 )
+@heavy
 def data(
     request: Request,
     study_id: StudyId,
@@ -353,6 +362,7 @@ def data(
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "map or edges"},
     },
 )
+@heavy
 def bandgap(
     request: Request,
     study_id: StudyId,
@@ -439,6 +449,7 @@ def _check_hysteresis(study_id: str, h: xr.Dataset) -> None:
         200: {"content": {"application/json": {}, _CSV: {}}, "description": "the branches"},
     },
 )
+@heavy
 def hysteresis(
     request: Request,
     study_id: StudyId,
@@ -482,6 +493,7 @@ def hysteresis(
     },
     response_class=Response,
 )
+@heavy
 def plot(
     request: Request,
     study_id: StudyId,

@@ -9,6 +9,7 @@ from starlette.concurrency import run_in_threadpool
 
 from service.api.catalogue import RUNNING, STATUSES
 from service.api.deps import CatalogueDep, JobsDep, SettingsDep, StudyId, study_or_404
+from service.api.guard import hide_paths
 from service.api.jobs import StateError
 from service.api.schemas import ErrorOut, StudyList, StudyOut
 from service.studies.files import StudyFileError, parse_study_text
@@ -35,6 +36,7 @@ def study_out(rec: dict[str, Any], positions: dict[str, int] | None = None) -> d
     rate = done / wall if running and wall and done else None
     out = {
         **rec,
+        "error": hide_paths(rec.get("error")),  # an OSError names a file of the data dir
         "progress": 1.0 if total == 0 else min(1.0, done / total),
         "queue_position": (positions or {}).get(rec["id"]) if rec["status"] == "queued" else None,
         "rate_points_per_s": rate,

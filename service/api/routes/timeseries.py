@@ -22,6 +22,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
 
 from service.analysis.selection import AnalysisError, coordinate_index, values_text
+from service.api.admission import heavy
 from service.api.deps import CatalogueDep, JobsDep, SettingsDep, StudyId
 from service.api.routes.results import (
     NETCDF,
@@ -80,6 +81,7 @@ _answers = _Answers(_CACHE_BYTES)
         200: {"content": {"application/json": {}, NETCDF: {}}, "description": "histories"},
     },
 )
+@heavy
 def timeseries(
     request: Request,
     study_id: StudyId,

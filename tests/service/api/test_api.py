@@ -30,7 +30,13 @@ from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
 from service.studies.variables import OUTCOMES, outcome_names
-from tests.service.helpers import SLOW_SOLVER, AppTransport, comparable, tiny_study
+from tests.service.helpers import (
+    JSON_BODY,
+    SLOW_SOLVER,
+    AppTransport,
+    comparable,
+    tiny_study,
+)
 
 
 class App:
@@ -152,7 +158,7 @@ def test_unknown_or_malformed_ids_are_404(make_app: Any, sid: str) -> None:
         for path in ("", "/dataset", "/data", "/bandgap", "/timeseries", "/plots/bandgap.png"):
             r = app.http.get(f"/studies/{sid}{path}")
             assert r.status_code == 404, (path, r.text)
-        assert app.http.delete(f"/studies/{sid}").status_code == 404
+        assert app.http.delete(f"/studies/{sid}", headers=JSON_BODY).status_code == 404
         with pytest.raises(NotFound):
             app.client.get(sid)
 

@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from starlette.routing import BaseRoute, Mount
 
 from service.api.app import OPEN_ROUTES
-from tests.service.helpers import API_TOKEN
+from tests.service.helpers import API_TOKEN, JSON_BODY
 
 SERVICE_DOC = Path(__file__).resolve().parents[3] / "docs" / "service.md"
 TOKEN = API_TOKEN
@@ -84,7 +84,7 @@ def test_every_route_but_the_open_ones_needs_the_token(tc: TestClient) -> None:
             continue
         assert methods, f"route {path} has no methods"
         for method in sorted(methods - {"HEAD"}):
-            r = tc.request(method, _url(path))
+            r = tc.request(method, _url(path), headers=JSON_BODY)
             if path in OPEN_ROUTES:
                 assert r.status_code != 401, (method, path)
                 checked_open.add(path)

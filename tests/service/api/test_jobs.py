@@ -22,7 +22,7 @@ from service.studies.chunks import StudyStore
 from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
-from tests.service.helpers import Server, tiny_study
+from tests.service.helpers import JSON_BODY, Server, tiny_study
 from worker.simulate import simulate_chunk
 
 # Points of one to two seconds each (Euler, 1.6e7 steps, the whole budget).
@@ -59,7 +59,7 @@ def test_queued_studies_show_their_place_in_the_queue(api: Any) -> None:
     ids = [tc.post("/studies", json=tiny_study(name=f"q{i}", num=3 + i)).json()["id"]
            for i in range(3)]  # fmt: skip
     assert [tc.get(f"/studies/{i}").json()["queue_position"] for i in ids] == [1, 2, 3]
-    assert tc.post(f"/studies/{ids[0]}/cancel").status_code == 200
+    assert tc.post(f"/studies/{ids[0]}/cancel", headers=JSON_BODY).status_code == 200
     recs = [tc.get(f"/studies/{i}").json() for i in ids]
     assert [r["queue_position"] for r in recs] == [None, 1, 2]
     assert all(r["eta_s"] is None and r["rate_points_per_s"] is None for r in recs)
@@ -71,12 +71,12 @@ def test_a_cancelled_study_says_how_to_resume_it(api: Any) -> None:
     tc, _ = api
     d = tiny_study()
     sid = tc.post("/studies", json=d).json()["id"]
-    rec = tc.post(f"/studies/{sid}/cancel").json()
+    rec = tc.post(f"/studies/{sid}/cancel", headers=JSON_BODY).json()
     assert rec["status"] == "cancelled" and f"/studies/{sid}/resume" in rec["hint"]
     again = tc.post("/studies", json=d)
     assert again.status_code == 200 and again.json()["status"] == "cancelled"
     assert "resume" in again.json()["hint"]
-    assert tc.post(f"/studies/{sid}/cancel").status_code == 409
+    assert tc.post(f"/studies/{sid}/cancel", headers=JSON_BODY).status_code == 409
 
 
 def test_delete_removes_the_record_and_every_file(api: Any) -> None:
@@ -88,11 +88,11 @@ def test_delete_removes_the_record_and_every_file(api: Any) -> None:
     run_study(study, s.data_dir, serial=True)
     store = StudyStore(s.data_dir, study)
     assert store.results_path.is_file()
-    r = tc.delete(f"/studies/{sid}")
+    r = tc.delete(f"/studies/{sid}", headers=JSON_BODY)
     assert r.status_code == 204 and r.content == b""
     assert tc.get(f"/studies/{sid}").status_code == 404
     assert not store.folder.exists()
-    assert tc.delete(f"/studies/{sid}").status_code == 404
+    assert tc.delete(f"/studies/{sid}", headers=JSON_BODY).status_code == 404
     # the same definition is a new study again
     assert tc.post("/studies", json=d).status_code == 202
 
@@ -127,7 +127,7 @@ def test_cancel_stops_running_points_and_frees_the_cluster(tmp_path: Path,
         sid = tc.post("/studies", json=d).json()["id"]
         _wait(tc, sid, lambda r: r["status"] == "running")
         time.sleep(3.0)  # both points are inside their kernels now
-        assert tc.post(f"/studies/{sid}/cancel").json()["status"] == "cancelled"
+        assert tc.post(f"/studies/{sid}/cancel", headers=JSON_BODY).json()["status"] == "cancelled"
         t0 = time.monotonic()
         # A small study gets the cluster at once: the cancelled points stopped (they would
         # hold both workers for a minute or more).
@@ -173,7 +173,7 @@ def test_a_small_study_is_not_held_behind_a_large_one(tmp_path: Path,
         b = tc.get(f"/studies/{bid}").json()
         assert b["status"] == "running" and b["points_done"] < 24
         assert b["rate_points_per_s"] > 0 and b["eta_s"] > 0
-        tc.post(f"/studies/{bid}/cancel")
+        tc.post(f"/studies/{bid}/cancel", headers=JSON_BODY)
 
 
 @pytest.mark.slow
@@ -236,7 +236,7 @@ def test_submitting_a_cancelled_study_with_resume_queues_it_again(api: Any) -> N
     tc, _ = api
     d = tiny_study()
     sid = tc.post("/studies", json=d).json()["id"]
-    tc.post(f"/studies/{sid}/cancel")
+    tc.post(f"/studies/{sid}/cancel", headers=JSON_BODY)
     r = tc.post("/studies", params={"resume": "true"}, json=d)
     assert r.status_code == 200 and r.json()["status"] == "queued" and r.json()["hint"] is None
     # a queued (or finished) study is returned as it is

@@ -31,7 +31,7 @@ from service.client import Client, Conflict
 from service.regression.run import run_suite
 from service.regression.suite import SuiteError, load_suite
 from service.studies.schema import Study
-from tests.service.helpers import SLOW_SOLVER, Server, tiny_study, write_suite
+from tests.service.helpers import JSON_BODY, SLOW_SOLVER, Server, tiny_study, write_suite
 
 TOKEN = "n1ght"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -82,7 +82,7 @@ def test_nightly_runs_through_the_service_queue_on_its_own_cluster(
         with Client(server.url, token=TOKEN) as c:
             user = c.submit(tiny_study(name="user", num=4))  # the service's cluster starts
             c.wait(user["id"], progress=False, timeout=180, poll=0.2)
-            r = httpx.post(f"{server.url}/regressions", headers=AUTH)
+            r = httpx.post(f"{server.url}/regressions", headers={**AUTH, **JSON_BODY})
             assert r.status_code == 202, r.text
             first = r.json()
             assert r.headers["location"] == f"/regressions/{first['id']}"
@@ -291,7 +291,7 @@ def test_the_cron_schedule_runs_the_services_runner(tmp_path: Path) -> None:
         assert state.nightly.run == state.nightly_runner.run
         assert state.nightly_runner.jobs is state.jobs
         # Without a runner thread no study would run: the API says so instead of queueing.
-        r = tc.post("/regressions")
+        r = tc.post("/regressions", headers=JSON_BODY)
         assert r.status_code == 503 and "job runner is not running" in r.json()["detail"]
 
 
@@ -340,7 +340,7 @@ def test_a_run_killed_with_its_service_is_marked_interrupted_on_restart(
     env = {"IMPACTCELL_NIGHTLY_DIR": str(suite)}
     first = Server(data, dask_address, token=TOKEN, env=env)
     try:
-        r = httpx.post(f"{first.url}/regressions", headers=AUTH)
+        r = httpx.post(f"{first.url}/regressions", headers={**AUTH, **JSON_BODY})
         assert r.status_code == 202, r.text
         reg_id = r.json()["id"]
         t0 = time.monotonic()

@@ -15,7 +15,7 @@ from service.api.app import create_app
 from service.api.routes import timeseries as ts_route
 from service.api.settings import Settings
 from tests.service.api.test_jobs import HEAVY_SOLVER
-from tests.service.helpers import Server, tiny_study
+from tests.service.helpers import JSON_BODY, Server, tiny_study
 
 
 def test_a_repeated_request_is_answered_from_the_cache(tmp_path: Path, monkeypatch: Any) -> None:
@@ -57,7 +57,8 @@ def test_health_answers_while_a_long_timeseries_runs(tmp_path: Path, dask_addres
     try:
         d = tiny_study(name="heavy", num=2, gaps=(0.1,), **HEAVY_SOLVER)
         sid = httpx.post(f"{srv.url}/studies", json=d).json()["id"]
-        httpx.post(f"{srv.url}/studies/{sid}/cancel")  # only its definition is needed here
+        # only its definition is needed here
+        httpx.post(f"{srv.url}/studies/{sid}/cancel", headers=JSON_BODY)
         out: dict[str, Any] = {}
 
         def ask() -> None:

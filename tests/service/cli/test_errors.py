@@ -267,6 +267,23 @@ def test_serve_on_a_port_in_use_fails_before_starting_anything(
     assert not data.exists()  # no catalogue, no data folder: nothing was started
 
 
+@pytest.mark.parametrize(
+    ("url", "code", "says"),
+    [
+        ("not a url", 2, "is not one SQLAlchemy reads"),
+        ("nosuchdb://x/y", 2, "is not one SQLAlchemy reads"),
+        ("postgresql+psycopg://u:pw@127.0.0.1:1/db", 1, "catalogue postgresql+psycopg://u:***@"),
+    ],
+)
+def test_serve_with_a_bad_database_url_says_so_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, url: str, code: int, says: str
+) -> None:
+    out = run("serve", "--port", "0", "--data-dir", str(tmp_path / "d"), "--database-url", url)
+    assert out.returncode == code, out.stderr
+    line = one_error_line(out.stderr)
+    assert says in line and "Traceback" not in out.stderr and "pw@" not in out.stderr
+
+
 def test_settings_errors_name_the_variable_its_value_and_what_is_allowed(
     monkeypatch: pytest.MonkeyPatch, study_file: Path
 ) -> None:

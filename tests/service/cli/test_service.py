@@ -112,8 +112,9 @@ def test_serve_never_prints_the_database_password(capsys, monkeypatch) -> None:
     import uvicorn
 
     monkeypatch.setattr(uvicorn, "run", lambda *a, **kw: None)  # the banner, not the server
-    url = "postgresql+psycopg://impactcell:s3cret@db.example:5432/impactcell"
-    assert main(["serve", "--port", "0", "--database-url", url]) == 0
+    # port 1 of the loopback: no server; serve says so (exit 1) before starting uvicorn
+    url = "postgresql+psycopg://impactcell:s3cret@127.0.0.1:1/impactcell"
+    assert main(["serve", "--port", "0", "--database-url", url]) == 1
     err = capsys.readouterr().err
-    assert "catalogue postgresql+psycopg://impactcell:***@db.example:5432/impactcell" in err
+    assert "catalogue postgresql+psycopg://impactcell:***@127.0.0.1:1/impactcell" in err
     assert "s3cret" not in err

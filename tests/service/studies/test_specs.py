@@ -110,10 +110,12 @@ def test_a_new_worker_field_appears_with_its_type_default_rule_and_doc() -> None
     assert field_docs(Toy) == {"rate": "How fast, > 0.", "count": "How many.", "other": "How many."}
     spec = spec_model("ToySpec", Toy, "Toy block.", ("rate", "count", "kind"))
     assert spec().model_dump() == {"rate": 1.5, "count": 3, "kind": "a"}
-    assert spec(rate="2e-3").rate == 0.002  # YAML 1.1 reads 2e-3 as a string
+    assert spec(rate=2e-3).rate == 0.002
     for bad, text in [
         ({"rate": 0}, "rate must be > 0, got 0.0"),
         ({"count": 10}, "count must be an integer in 1…9, got 10"),
+        ({"rate": "2e-3"}, "must be a number, got the text '2e-3'"),
+        ({"count": "3"}, "must be a number, got the text '3'"),
         ({"kind": "c"}, "Input should be 'a' or 'b'"),
         ({"speed": 1}, "Extra inputs are not permitted"),
     ]:

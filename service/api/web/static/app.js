@@ -171,6 +171,11 @@
     const headers = new Headers(opts.headers || {});
     const token = sessionStorage.getItem(TOKEN_KEY);
     if (token) headers.set("Authorization", `Bearer ${token}`);
+    // The service takes a state change only with a JSON or YAML body type (its guard against
+    // pages of other sites), also when there is no body (cancel, resume, delete).
+    if ((opts.method || "GET").toUpperCase() !== "GET" && !headers.has("Content-Type")) {
+      headers.set("Content-Type", "application/json");
+    }
     opts.headers = headers;
     const r = await fetch(path, opts);
     if (r.status === 401) {
