@@ -20,10 +20,13 @@ from tests.service.helpers import API_TOKEN
 TEST_HOSTS = "localhost,127.0.0.1,::1,testserver"
 
 
-@pytest.fixture(autouse=True)
-def _test_hosts(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Let the service answer TestClient's host name besides its default loopback names."""
-    monkeypatch.setenv("IMPACTCELL_ALLOWED_HOSTS", TEST_HOSTS)
+@pytest.fixture(autouse=True, scope="session")
+def _test_hosts() -> Iterator[None]:
+    """Let the service answer TestClient's host name besides its default loopback names (for
+    the whole session: module-scoped apps are made before any test's own fixtures)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("IMPACTCELL_ALLOWED_HOSTS", TEST_HOSTS)
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -455,7 +455,9 @@ def test_the_services_problems_are_printed_once(
     (tmp_path / "adaptive.yaml").write_text(yaml.safe_dump(ADAPTIVE))
     with TestClient(create_app(Settings(data_dir=tmp_path / "data"), run_jobs=False)) as tc:
         monkeypatch.setattr(
-            service_cli, "_client", lambda args: Client("http://app", transport=AppTransport(tc))
+            service_cli,
+            "_client",
+            lambda args: Client("http://testserver", transport=AppTransport(tc)),
         )
         out = run("submit", str(tmp_path / "bad.yaml"))
         assert out.returncode == 2
