@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import sys
 import uuid
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Any
 
 from fastapi import Depends, FastAPI, Request
@@ -282,11 +284,19 @@ def _route_of(app: FastAPI, path: str, method: str) -> Any:
     return None
 
 
-def _add_docs(app: FastAPI) -> None:
-    """Swagger UI at ``/docs`` with its JS and CSS served by the service itself."""
-    from swagger_ui_bundle import swagger_ui_path
+def swagger_ui_assets() -> Path:
+    """The folder of Swagger UI's files in the ``swagger-ui-py`` package (found, not imported:
+    the package's own module loads web-framework glue the service does not need)."""
+    spec = importlib.util.find_spec("swagger_ui")
+    if spec is None or not spec.submodule_search_locations:
+        raise RuntimeError("swagger-ui-py is not installed (a dependency of impactcell)")
+    return Path(next(iter(spec.submodule_search_locations))) / "static"
 
-    app.mount(_ASSETS, StaticFiles(directory=swagger_ui_path), name="swagger-ui-assets")
+
+def _add_docs(app: FastAPI) -> None:
+    """Swagger UI at ``/docs`` with its JS and CSS served by the service itself: Swagger UI 5
+    from the ``swagger-ui-py`` package, which reads the OpenAPI 3.1 that FastAPI writes."""
+    app.mount(_ASSETS, StaticFiles(directory=swagger_ui_assets()), name="swagger-ui-assets")
 
     @app.get("/docs", include_in_schema=False)
     async def _docs(request: Request) -> HTMLResponse:

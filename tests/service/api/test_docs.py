@@ -67,6 +67,9 @@ def test_swagger_ui_is_served_locally(tc: TestClient) -> None:
     js = tc.get("/docs/assets/swagger-ui-bundle.js")
     assert js.status_code == 200 and len(js.content) > 100_000
     assert "javascript" in js.headers["content-type"]
+    # Swagger UI 5 reads OpenAPI 3.1 (4.x shows "Unable to render this definition")
+    assert tc.get("/openapi.json").json()["openapi"].startswith("3.1")
+    assert re.search(rb'"5\.\d+\.\d+"', js.content), "not Swagger UI 5 (tests/service/web)"
     css = tc.get("/docs/assets/swagger-ui.css")
     assert css.status_code == 200 and "text/css" in css.headers["content-type"]
     assert tc.get("/redoc").status_code == 404  # no redoc (it would load from a CDN)
