@@ -405,7 +405,10 @@ def bandgap(
     return json_response(out)
 
 
-_JUMP_DOC = "a jump: consecutive points of a branch differ by more than this (units of variable)"
+_JUMP_DOC = (
+    "a jump: a step of a branch over this (units of variable) that is a discontinuity "
+    "(docs/service.md, What counts as a jump)"
+)
 _TOL_DOC = "the branches differ where their values spread over this (units of variable)"
 
 
