@@ -32,7 +32,7 @@ from service.studies.chunks import StudyStore
 from service.studies.dataset import open_results
 from service.studies.runner import run_study
 from service.studies.schema import parse_study
-from tests.service.helpers import SLOW_SOLVER, Server, comparable, tiny_study
+from tests.service.helpers import JSON_BODY, SLOW_SOLVER, Server, comparable, tiny_study
 
 # 64 points of ~20 ms each in 8 chunks (2 workers): a run of a second or two, non-chaotic
 # points (the same bits wherever they run on this machine).
@@ -335,5 +335,5 @@ def test_a_small_study_starts_within_seconds_behind_a_2m_point_grid(
         assert lease is not None
         assert lease["expires_at"].timestamp() > time.time() + 0.5
         assert tc.get(f"/studies/{bid}").json()["status"] == "running"
-        assert tc.post(f"/studies/{bid}/cancel").json()["status"] == "cancelled"
+        assert tc.post(f"/studies/{bid}/cancel", headers=JSON_BODY).json()["status"] == "cancelled"
     cat.close()
