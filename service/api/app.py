@@ -38,7 +38,7 @@ __all__ = ["OPEN_ROUTES", "create_app"]
 #: dialog), and the web page's shell (``/``, ``/ui/*``: no data; it asks for the token).
 #: Everything else answers 401 without ``Authorization: Bearer <token>``.
 OPEN_ROUTES = ("/health", "/docs", "/openapi.json", "/docs/assets", "/", "/ui/{path}")
-_ASSETS = "/docs/assets"  # Swagger UI's JS and CSS, from the swagger-ui-bundle package
+_ASSETS = "/docs/assets"  # Swagger UI's JS and CSS, from the swagger-ui-py package
 
 log = logging.getLogger("impactcell.app")
 
