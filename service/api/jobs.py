@@ -94,6 +94,7 @@ class _Active:
     show_backoff: Backoff = field(default_factory=Backoff)  # writing that status
     finish_error: BaseException | None = None  # why its results file could not be written yet
     finish_backoff: Backoff | None = None
+    collating: Future[Any] | None = None  # its results file being written (off the runner)
     summary: RunSummary | None = None  # its results file, once written
 
     def wall_s(self) -> float:
@@ -128,6 +129,12 @@ class JobManager:
         self._beat_thread: threading.Thread | None = None
         # Studies being prepared (off the runner thread), and those waiting to be again.
         self._prep = ThreadPoolExecutor(2, thread_name_prefix="impactcell-prepare")
+        # Results files are written off the runner thread too (a 2M-point study's takes long:
+        # other studies' chunks go on meanwhile), each study's at once: a small study's file is
+        # never written behind a big one's.
+        self._collator = ThreadPoolExecutor(
+            settings.max_running_studies, thread_name_prefix="impactcell-collate"
+        )
         self._preparing: dict[str, Future[Any]] = {}
         self._prep_retry: dict[str, tuple[float, Backoff]] = {}
 
@@ -159,6 +166,9 @@ class JobManager:
         if self._beat_thread is not None:
             self._beat_thread.join(timeout)
         self._prep.shutdown(wait=False, cancel_futures=True)
+        # A results file being written is finished (collating removes the chunks it read); a
+        # next start finds it, checked, and records it.
+        self._collator.shutdown(wait=True, cancel_futures=True)
         self._close_dask()
 
     def _close_dask(self) -> None:
@@ -396,6 +406,7 @@ class JobManager:
             if self._pool is not None:
                 self._pool.remove(sid)
             act = self._active.pop(sid)
+            _settle(act)
             # the running time so far counts (a later resume continues from it)
             try:
                 self.catalogue.update_fenced(
@@ -585,8 +596,16 @@ class JobManager:
             # Collated once: collating removes the chunks, so a retry (the catalogue was away)
             # records the results file written then.
             if act.summary is None:
+                if act.collating is None:
+                    if self._pool is not None:
+                        self._pool.remove(sid)  # nothing of it runs any more
+                    act.collating = self._collator.submit(act.run.collate, self._nworkers)
+                    return  # looked at again by _retry_finishing
+                if not act.collating.done():
+                    return
+                done, act.collating = act.collating, None
                 try:
-                    act.summary = act.run.collate(self._nworkers)
+                    act.summary = done.result()
                 except MissingPoints as exc:
                     self._run_again(sid, act, exc)
                     return
@@ -627,8 +646,10 @@ class JobManager:
     def _retry_finishing(self) -> None:
         """Write again the results files that could not be written (backed off)."""
         for sid, act in list(self._active.items()):
-            if act.finish_error is not None and act.finish_backoff is not None:
-                self._finish(sid)  # does nothing before its backoff is due
+            if act.collating is not None or (
+                act.finish_error is not None and act.finish_backoff is not None
+            ):
+                self._finish(sid)  # does nothing before its file or its backoff is due
 
     def _run_again(self, sid: str, act: _Active, exc: MissingPoints) -> None:
         """Queue a study again whose chunks were damaged (and set aside) while it ran: the
@@ -697,7 +718,9 @@ class JobManager:
         """Drop a study's run here without touching its record (it is not ours any more)."""
         if self._pool is not None:
             self._pool.remove(sid)
-        self._active.pop(sid, None)
+        act = self._active.pop(sid, None)
+        if act is not None:
+            _settle(act)
         self._preparing.pop(sid, None)
         self._prep_retry.pop(sid, None)
         self._unhold(sid, release=False)
@@ -749,6 +772,15 @@ def _holder_gone(holder: str) -> bool:
     except OSError:  # exists, owned by someone else
         return False
     return False
+
+
+def _settle(act: _Active) -> None:
+    """Wait for a results file being written for ``act`` (a cancel or delete must not race the
+    writer; it is never long beside what the study took)."""
+    if act.collating is not None:
+        with contextlib.suppress(Exception):  # its outcome no longer matters here
+            act.collating.result()
+        act.collating = None
 
 
 def _keep_failures(

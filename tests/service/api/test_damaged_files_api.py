@@ -135,8 +135,13 @@ def test_a_study_whose_chunks_are_found_damaged_at_collation_is_queued_again(
         token = cat.acquire_fenced(lease_name(study.id), jobs.instance, 60.0)
         assert token is not None  # the runner holds the study's lease, as when it runs it
         jobs._hold(study.id, token)
-        jobs._active[study.id] = _Active(study, run, 0.0, jobs._fence(study.id, token))
-        jobs._finish(study.id)
+        act = _Active(study, run, 0.0, jobs._fence(study.id, token))
+        jobs._active[study.id] = act
+        jobs._finish(study.id)  # the results file is written off the runner thread ...
+        assert act.collating is not None
+        with pytest.raises(MissingPoints):
+            act.collating.result(timeout=60)
+        jobs._retry_finishing()  # ... and looked at again by the runner's next step
         rec = cat.get_study(study.id)
         assert rec is not None and rec["status"] == "queued" and rec["error"] is None
         assert jobs._queue.get_nowait() == study.id  # the runner takes it up again

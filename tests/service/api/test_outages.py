@@ -337,3 +337,36 @@ def test_a_small_study_starts_within_seconds_behind_a_2m_point_grid(
         assert tc.get(f"/studies/{bid}").json()["status"] == "running"
         assert tc.post(f"/studies/{bid}/cancel", headers=JSON_BODY).json()["status"] == "cancelled"
     cat.close()
+
+
+@pytest.mark.slow
+def test_a_small_study_finishes_while_a_big_ones_results_file_is_written(
+    tmp_path: Path, dask_address: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Collation runs off the runner thread: a study whose results file takes long to write
+    (held here for 8 s) holds no other study, and is recorded once its file is there."""
+    release = threading.Event()
+    plain = runner_mod.StudyRun.collate
+
+    def slow_collate(self: runner_mod.StudyRun, workers: int) -> Any:
+        if self.study.name == "first":
+            release.wait(8.0)
+        return plain(self, workers)
+
+    monkeypatch.setattr(runner_mod.StudyRun, "collate", slow_collate)
+    s = Settings(data_dir=tmp_path / "data", scheduler=dask_address)
+    with TestClient(create_app(s, run_jobs=True)) as tc:
+        fid = tc.post("/studies", json=tiny_study(name="first", num=6, gaps=(0.1,))).json()["id"]
+        _wait(lambda: tc.get(f"/studies/{fid}").json(), lambda r: r["points_done"] == 6)
+        t0 = time.monotonic()
+        sid = tc.post("/studies", json=tiny_study(name="second", num=5, gaps=(0.1,))).json()["id"]
+        rec = _wait(lambda: tc.get(f"/studies/{sid}").json(),
+                    lambda r: r["status"] == "finished", timeout=30)  # fmt: skip
+        took = time.monotonic() - t0
+        assert rec["points_done"] == 5 and took < 6.0, f"held {took:.1f} s behind a collation"
+        assert tc.get(f"/studies/{fid}").json()["status"] == "running"  # its file not yet there
+        release.set()
+        first = _wait(lambda: tc.get(f"/studies/{fid}").json(),
+                      lambda r: r["status"] == "finished", timeout=30)  # fmt: skip
+        assert first["points_done"] == 6
+        assert tc.get(f"/studies/{fid}/dataset").status_code == 200
