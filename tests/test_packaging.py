@@ -51,18 +51,33 @@ def test_the_test_extra_carries_the_build_backend() -> None:
         assert r.name in extra and extra[r.name].specifier == r.specifier, r
 
 
-@pytest.mark.slow
-def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) -> None:
-    dist = tmp_path / "dist"
+def _wheel(dist: Path) -> Path:
+    """This checkout's wheel, built into ``dist``. No build isolation and no index: pip would
+    fetch the build backend from the package index, and no test reaches the internet; the
+    test extra installs it (checked above)."""
     build = subprocess.run(
-        # No build isolation and no index: pip would fetch the build backend from the package
-        # index, and no test reaches the internet; the test extra installs it (checked above).
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
          "-q", "-w", str(dist), str(ROOT)],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert build.returncode == 0, build.stderr
     (wheel,) = dist.glob("impactcell-*.whl")
+    return wheel
+
+
+def _install(wheel: Path, site: Path) -> None:
+    """Install ``wheel`` alone (no dependencies) into the folder ``site``."""
+    install = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
+         str(site), str(wheel)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert install.returncode == 0, install.stderr
+
+
+@pytest.mark.slow
+def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) -> None:
+    wheel = _wheel(tmp_path / "dist")
     names = set(zipfile.ZipFile(wheel).namelist())
     shipped = _shipped_files()
     assert {"quick.yaml", "nightly/table1.yaml", "baselines/table1.nc"} <= shipped
@@ -70,12 +85,7 @@ def test_the_wheel_carries_the_shipped_studies_and_finds_them(tmp_path: Path) ->
     assert not any(n.startswith("studies/") for n in names)
 
     site = tmp_path / "site"
-    install = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
-         str(site), str(wheel)],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert install.returncode == 0, install.stderr
+    _install(wheel, site)
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     env = {**os.environ, "PYTHONPATH": str(site), "IMPACTCELL_DATA_DIR": str(tmp_path / "data")}
@@ -179,20 +189,7 @@ def test_the_client_runs_with_httpx_xarray_and_numpy_alone(tmp_path: Path) -> No
             src = Path(str(dist.locate_file(top)))
             if src.exists() and not (site / top).exists():
                 (site / top).symlink_to(src)
-    dist_dir = tmp_path / "dist"
-    build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-         "-q", "-w", str(dist_dir), str(ROOT)],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert build.returncode == 0, build.stderr
-    (wheel,) = dist_dir.glob("impactcell-*.whl")
-    install = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--no-deps", "--no-index", "-q", "--target",
-         str(site), str(wheel)],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert install.returncode == 0, install.stderr
+    _install(_wheel(tmp_path / "dist"), site)
     script = (
         "import importlib.util, json, sys\n"
         "import httpx\n"

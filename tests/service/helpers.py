@@ -69,6 +69,12 @@ FAST_SOLVER = {"steps_per_period": 256, "max_periods": 60, "periodicity_tol": 1e
 # the default event method only the budget and the tolerance count (steps_per_period is for the
 # stepping methods): 480 tiny-study points of it are ~10 s of serial kernel time. A test that
 # must hold the cluster for longer uses Euler points (MEDIUM_SOLVER in api/test_jobs.py).
+#: The Table-1 experiment's cell (docs/experiment.md), as a study's ``physical`` block.
+TABLE1_CELL = {
+    "length_m": 0.15, "width_m": 0.01, "thickness_m": 0.0025, "density_kg_m3": 1250.0,
+    "youngs_modulus_pa": 4.583e7, "outer_mass_kg": 0.01667, "spring_n_m": 350.0,
+    "damping_ratio": 0.03, "gap_m": 0.001,
+}  # fmt: skip
 SLOW_SOLVER = {"steps_per_period": 2048, "max_periods": 100, "periodicity_tol": 1e-13}
 
 

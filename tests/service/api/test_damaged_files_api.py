@@ -5,7 +5,7 @@ response shows a server path."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import netCDF4
@@ -16,15 +16,6 @@ from tests.service.api.test_results import QUICK, Served, record
 from tests.service.studies.test_damaged_files import _flip_value, _truncate
 
 ROUTES = ("/dataset", "/data", "/bandgap", "/plots/bandgap.png")
-
-
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    app = Served(tmp_path, QUICK)
-    try:
-        yield app
-    finally:
-        app.close()
 
 
 def _no_path(served: Served, body: bytes) -> None:

@@ -181,15 +181,6 @@ def test_a_study_without_sweep_or_starts_has_no_hysteresis(served: Served) -> No
         served.client.hysteresis(served.id)
 
 
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    app = Served(tmp_path, QUICK)
-    try:
-        yield app
-    finally:
-        app.close()
-
-
 def test_a_partial_sweep_study_from_its_chunks(tmp_path: Path) -> None:
     """A sweep with two initial states, half of its lines done: served from the chunks."""
     definition = {

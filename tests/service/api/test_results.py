@@ -10,7 +10,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -74,15 +73,6 @@ class Served:
 
     def close(self) -> None:
         self.tc.__exit__(None, None, None)
-
-
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    app = Served(tmp_path, QUICK)
-    try:
-        yield app
-    finally:
-        app.close()
 
 
 def _reads(monkeypatch: pytest.MonkeyPatch) -> list[str]:

@@ -21,6 +21,7 @@ from service.studies.dataset import (
 )
 from service.studies.schema import parse_study
 from service.studies.variables import outcome_names
+from tests.service.helpers import TABLE1_CELL
 from worker.simulate import simulate_chunk
 from worker.solvers.settings import OUTCOMES, TRANSIENT_NOTE
 
@@ -372,17 +373,7 @@ def test_physical_results_carry_hz_and_gamma_r(tmp_path: Path) -> None:
         {
             "name": "phys",
             "solver": SOLVER,
-            "physical": {
-                "length_m": 0.15,
-                "width_m": 0.01,
-                "thickness_m": 0.0025,
-                "density_kg_m3": 1250.0,
-                "youngs_modulus_pa": 4.583e7,
-                "outer_mass_kg": 0.01667,
-                "spring_n_m": 350.0,
-                "damping_ratio": 0.03,
-                "gap_m": 0.001,
-            },  # fmt: skip
+            "physical": TABLE1_CELL,
             "grid": {"frequency_hz": [20.0, 25.0], "base_amplitude_m": [0.0005, 0.001]},
         }
     )

@@ -13,7 +13,7 @@ import httpx
 import pytest
 
 from service.client import Client
-from tests.service.helpers import FAST_SOLVER, SLOW_SOLVER, Server, tiny_study
+from tests.service.helpers import FAST_SOLVER, SLOW_SOLVER, TABLE1_CELL, Server, tiny_study
 
 # a real server, a real cluster, a real browser; `page` comes first in every signature, so a
 # missing browser skips before a server or cluster is started
@@ -204,17 +204,7 @@ def test_a_physical_study_page_reads_in_prefixed_si_units(page: Any, server: Ser
     study = {
         "name": "web-si",
         "solver": FAST_SOLVER,
-        "physical": {
-            "length_m": 0.15,
-            "width_m": 0.01,
-            "thickness_m": 0.0025,
-            "density_kg_m3": 1250.0,
-            "youngs_modulus_pa": 4.583e7,
-            "outer_mass_kg": 0.01667,
-            "spring_n_m": 350.0,
-            "damping_ratio": 0.03,
-            "gap_m": 0.001,
-        },  # fmt: skip
+        "physical": TABLE1_CELL,
         "grid": {"base_amplitude_m": [0.00025, 0.0005, 0.001], "frequency_hz": [12, 20, 30]},
     }
     with Client(server.url) as c:

@@ -6,7 +6,6 @@ runs it (service.studies.fence).
 
 Revision ID: 0003
 Revises: 0002
-Create Date: 2026-12-07 19:45:00
 """
 
 from collections.abc import Sequence
