@@ -4,10 +4,10 @@
                                     [--out audits/results]
 
 The engine advances a point in batches of periods and shortens them when periods are slow
-(``engine._pace``, by the clock: under load, or at costly points), so that limits and cancel
+(``loop._Engine._pace``, by the clock: under load, or at costly points), so that limits and cancel
 are seen often enough. Where the clock cuts must change nothing a point reports. Each point is
 run twice in this process: as it comes (on an idle machine no batch of these points is cut) and
-with ``engine.BATCH_S`` at 0, so that every batch is one period, the most cuts there can be.
+with ``cfg.BATCH_S`` at 0, so that every batch is one period, the most cuts there can be.
 Every field of the two results but ``wall_s`` is compared, to the bit.
 
 Points: by default the 600 of the killed-worker topology test (``tests/test_topology.py``:
@@ -47,7 +47,7 @@ from audits.common import (  # noqa: E402
 )
 from worker.model import CellParams  # noqa: E402
 from worker.simulate import SOLVER_VERSION, SolverSettings, simulate_point, warm_up  # noqa: E402
-from worker.solvers import engine  # noqa: E402
+from worker.solvers.engine import config as cfg  # noqa: E402
 
 # tests/service/helpers.FAST_SOLVER with test_topology.KILL_SOLVER (steps_per_period is for the
 # stepping methods; the default event method does not look at it)
@@ -79,12 +79,12 @@ def compare(points: list[tuple[str, float, CellParams]], settings: SolverSetting
     """Each point as it comes, then with every batch one period; one row per point that
     differs."""
     ref = [simulate_point(p, settings).as_dict() for _, _, p in points]
-    saved = engine.BATCH_S
-    engine.BATCH_S = 0.0  # every batch "slow": one period each
+    saved = cfg.BATCH_S
+    cfg.BATCH_S = 0.0  # every batch "slow": one period each
     try:
         cut = [simulate_point(p, settings).as_dict() for _, _, p in points]
     finally:
-        engine.BATCH_S = saved
+        cfg.BATCH_S = saved
     rows = []
     for (case, g, _), a, b in zip(points, ref, cut, strict=True):
         diff = differences(a, b)
@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     what = args.study or (f"{args.random} random cells (seed {args.seed})" if args.random else
                           "the killed-worker topology test's points")  # fmt: skip
     lines = [
-        f"Every batch one period (`engine.BATCH_S` = 0) against batches as they come, solver "
+        f"Every batch one period (`cfg.BATCH_S` = 0) against batches as they come, solver "
         f"version {SOLVER_VERSION}: {what}, {len(points)} points, every field but `wall_s` "
         f"compared to the bit.",
         "",

@@ -133,11 +133,11 @@ def orbit_spread(study: str) -> list[tuple[int, float]]:
     """(period, orbit Γ − cycle-by-cycle Γ in dB) of every reported orbit of period ≥ 2 of a
     shipped study, read from the rows the engine measured the orbit with."""
     from audits.common import study_points
-    from worker.solvers import engine
     from worker.solvers import measure as ms
+    from worker.solvers.engine import loop
 
     got: list[tuple[int, float]] = []
-    classify = engine._Engine._classify_orbit
+    classify = loop._Engine._classify_orbit
 
     def measured(self: Any, orbit: Any) -> tuple[str, object]:
         out = classify(self, orbit)
@@ -148,14 +148,14 @@ def orbit_spread(study: str) -> list[tuple[int, float]]:
             got.append((orbit.p, 20.0 * math.log10(whole / cycle)))
         return out
 
-    engine._Engine._classify_orbit = measured  # type: ignore[method-assign]
+    loop._Engine._classify_orbit = measured  # type: ignore[method-assign]
     try:
         points, settings = study_points(study)
         warm_up(settings.method)
         for _, _, p in points:
             simulate_point(p, settings)
     finally:
-        engine._Engine._classify_orbit = classify  # type: ignore[method-assign]
+        loop._Engine._classify_orbit = classify  # type: ignore[method-assign]
     return got
 
 

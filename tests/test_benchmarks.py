@@ -8,6 +8,7 @@ import importlib.util
 import json
 import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -491,7 +492,7 @@ def test_interleaved_times_two_checkouts_on_the_same_points(tmp_path: Path) -> N
 def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch) -> None:
     import numpy as np
 
-    from worker.solvers import engine
+    from worker.solvers.engine import config as cfg
 
     bc = _load("batch_cuts")
     a = {"transmittance_db": 1.0, "wall_s": 1.0, "final_state": np.array([1.0, 2.0])}
@@ -499,14 +500,14 @@ def test_batch_cuts_compares_every_field_to_the_bit(tmp_path: Path, monkeypatch)
     assert list(bc.differences(a, b)) == ["transmittance_db"]  # one ulp counts; wall_s never
     b["final_state"] = np.array([1.0, 2.5])
     assert list(bc.differences(a, b)) == ["final_state", "transmittance_db"]
-    pace = engine.BATCH_S
+    pace = cfg.BATCH_S
     assert bc.main(["--max", "12", "--out", str(tmp_path)]) == 0  # the real engine: none differ
-    assert pace == engine.BATCH_S  # restored
+    assert pace == cfg.BATCH_S  # restored
     assert "**0 of 12 points differ**" in (tmp_path / "batch_cuts.md").read_text()
 
     class Result:  # a point whose periods depend on the batches (what the audit looks for)
         def as_dict(self) -> dict:
-            return {"outcome": "periodic", "periods": 4 if engine.BATCH_S else 3}
+            return {"outcome": "periodic", "periods": 4 if cfg.BATCH_S else 3}
 
     monkeypatch.setattr(bc, "simulate_point", lambda p, s: Result())
     assert bc.main(["--max", "2", "--out", str(tmp_path)]) == 1
@@ -601,3 +602,53 @@ def test_every_benchmark_of_the_asv_suite_runs_once() -> None:
         if meth.startswith("track_"):  # work counters: whole, positive, the same every run
             assert isinstance(value, int) and value > 0, (name, meth)
             assert getattr(bench, meth)(*params) == value, (name, meth)
+
+
+@pytest.mark.slow
+def test_fair_yardstick_prints_ratios_errors_and_the_compiled_engine_ceiling(
+    tmp_path: Path,
+) -> None:
+    fy = _load("fair_yardstick")
+    fy.main(["--points", "2", "--out", str(tmp_path)])
+    md = (tmp_path / "fair_yardstick.md").read_text()
+    assert "| default (`event`) |" in md and "| fair yardstick: euler + Lemke" in md
+    assert "old protocol (history)" in md
+    assert "If everything else cost nothing" in md and "linear and periodic points" in md
+    # the ceiling divides by the time loops alone: at least the ratio of whole calls
+    ratios = [float(x) for x in re.findall(r"([0-9.]+)× mean", md)]
+    assert ratios and all(r > 0 for r in ratios)
+
+
+def test_config_pins_reads_every_constant_and_its_pins(tmp_path: Path) -> None:
+    cp = _load("config_pins")
+    cfg = tmp_path / "config.py"
+    cfg.write_text(
+        "# A.\n# Trades: x.\n# Pinned by: tests/a.py::test_a, tests/b.py::test_b\nA = 3\n"
+        "B = 0.5\n\n# C.\n# Pinned by: tests/c.py::test_c\nC = 2.0\nD = (A + 1) * 2\n"
+    )
+    got = cp.constants(cfg)
+    assert got == {
+        "A": (3, ["tests/a.py::test_a", "tests/b.py::test_b"]),
+        "B": (0.5, ["tests/a.py::test_a", "tests/b.py::test_b"]),  # shares A's block
+        "C": (2.0, ["tests/c.py::test_c"]),
+    }  # D is derived: not perturbed on its own
+
+
+def test_kernel_cost_fits_the_loops_per_period_impact_and_call() -> None:
+    kc = _load("kernel_cost")
+    # made-up loops: 2 µs a period, 3 µs an impact, 10 µs a call, fitted back exactly
+    rows = [[2e-6 * p + 3e-6 * i + 1e-5 * c, p, i, c]
+            for p, i, c in [(100, 0, 3), (50, 80, 2), (400, 30, 9), (10, 10, 1)]]  # fmt: skip
+    a, b, c = kc.fit(rows)
+    assert math.isclose(a, 2e-6, rel_tol=1e-9) and math.isclose(b, 3e-6, rel_tol=1e-9)
+    assert math.isclose(c, 1e-5, rel_tol=1e-9)
+
+
+@pytest.mark.slow
+def test_kernel_cost_runs_and_counts_the_impacts(tmp_path: Path) -> None:
+    kc = _load("kernel_cost")
+    assert kc.main(["--points", "3", "--repeat", "1", "--out", str(tmp_path)]) == 0
+    md = (tmp_path / "kernel_cost.md").read_text()
+    m = re.search(r"([0-9,]+) periods, ([0-9,]+) impacts", md)
+    assert m and int(m.group(1).replace(",", "")) > 0 and int(m.group(2).replace(",", "")) > 0
+    assert "| per impact-free period | per impact |" in md

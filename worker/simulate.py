@@ -26,12 +26,8 @@ from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_
 from worker.model import CellParams, assemble, steady_state
 from worker.numba_cache import exclusive, mark_done, marked_done, on_disk
 from worker.solvers.dispatch import KERNELS, RUNS
-from worker.solvers.engine import (
-    DIVERGENCE_FACTOR,
-    compile_helpers,
-    linear_reference_db,
-    run_point,
-)
+from worker.solvers.engine import compile_helpers, linear_reference_db, run_point
+from worker.solvers.engine import config as engine_config
 from worker.solvers.event.kernel import EVENT_FIELDS
 from worker.solvers.linear import linear_tail
 from worker.solvers.measure import HISTORY_FIELDS
@@ -156,8 +152,8 @@ def simulate_point(
     scale = max(tail.scale, float(np.max(np.abs(x0))), gaps if math.isfinite(gaps) else 0.0)
 
     def make_run():
-        return RUNS[settings.method](sys_, settings, tail, forcing, DIVERGENCE_FACTOR * scale,
-                                     **options)  # fmt: skip
+        bound = engine_config.DIVERGENCE_FACTOR * scale
+        return RUNS[settings.method](sys_, settings, tail, forcing, bound, **options)
 
     return run_point(make_run, sys_, tail, settings, x0, history_periods, limits, cancelled)
 

@@ -1,4 +1,4 @@
-"""How a point ends (worker/solvers/engine.py): every outcome, proven or labelled."""
+"""How a point ends (worker/solvers/engine/): every outcome, proven or labelled."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import pytest
 
 from worker.model import CellParams, assemble, steady_state
 from worker.simulate import SolverSettings, simulate_point
-from worker.solvers import engine
 from worker.solvers import measure as ms
 from worker.solvers.base import ExactMonodromy
 from worker.solvers.dispatch import RUNS
@@ -19,9 +18,11 @@ from worker.solvers.engine import (
     UNTRUSTED_NOTE,
     budget_for_error,
     few_batches_factor,
+    orbits,
     rre,
     series_stats,
 )
+from worker.solvers.engine import config as cfg
 from worker.solvers.linear import linear_tail
 
 METHODS = ("event", "exponential", "euler")
@@ -75,24 +76,24 @@ def test_newton_lands_on_the_fixed_point_of_an_affine_map_in_one_step():
     x = xstar + 1e-3 * rng.normal(size=n)
     res = (xstar + J @ (x - xstar)) - x  # F(x) - x
     r = float(np.max(np.abs(res)))
-    step = engine._newton_step(ExactMonodromy(J, False), res, r, 0.98)
+    step = orbits._newton_step(ExactMonodromy(J, False), res, r, 0.98)
     np.testing.assert_allclose(x - step, xstar, atol=1e-13)
     # where it is not to be trusted: no matrix, a shifted section, J - I singular, a step
     # beyond what the residual and the contraction allow (another branch, far from the orbit)
-    assert engine._newton_step(None, res, r, 0.98) is None
-    assert engine._newton_step(ExactMonodromy(J, True), res, r, 0.98) is None
+    assert orbits._newton_step(None, res, r, 0.98) is None
+    assert orbits._newton_step(ExactMonodromy(J, True), res, r, 0.98) is None
     Js = Q @ np.diag([1.0, -0.9, 0.5, 0.2, 0.1, 0.05]) @ Q.T
     Js[0] = Js[1] + np.eye(n)[0] - np.eye(n)[1]  # J - I with two equal rows: singular
-    assert engine._newton_step(ExactMonodromy(Js, False), res, r, 0.98) is None
-    assert engine._newton_step(ExactMonodromy(J, False), res, r * 1e-4, 0.98) is None
+    assert orbits._newton_step(ExactMonodromy(Js, False), res, r, 0.98) is None
+    assert orbits._newton_step(ExactMonodromy(J, False), res, r * 1e-4, 0.98) is None
     # along the slow mode (0.98) the step is 50 residuals long: within what a sequence that
     # contracts by 0.98 allows (10 / 0.02), not within what one that contracts by 0.5 does
     slow = xstar + 1e-3 * Q[:, 0]
     res_slow = (xstar + J @ (slow - xstar)) - slow
     r_slow = float(np.max(np.abs(res_slow)))
-    step = engine._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.98)
+    step = orbits._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.98)
     np.testing.assert_allclose(slow - step, xstar, atol=1e-13)
-    assert engine._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.5) is None
+    assert orbits._newton_step(ExactMonodromy(J, False), res_slow, r_slow, 0.5) is None
 
 
 def test_samples_follow_a_linearized_map_only_where_they_approach_its_fixed_point():
@@ -102,25 +103,25 @@ def test_samples_follow_a_linearized_map_only_where_they_approach_its_fixed_poin
     for _ in range(7):
         x.append(xstar + J @ (x[-1] - xstar))
     X = np.array(x)
-    assert engine._follows(J, X, xstar) and engine._follows(J, X, xstar, chained=False)
+    assert orbits._follows(J, X, xstar) and orbits._follows(J, X, xstar, chained=False)
     # a quadratic term of a few per cent of the deviation: still the linear regime
     quad = [X[0]]
     for _ in range(7):
         d = quad[-1] - xstar
         quad.append(xstar + J @ d + 3.0 * np.max(np.abs(d)) * d)
-    assert engine._follows(J, np.array(quad), xstar)
+    assert orbits._follows(J, np.array(quad), xstar)
     # an orbit of period 3 around the fixed point: near it, never approaching it
     c = xstar + 1e-3 * rng.normal(size=(3, n))
     cycle = np.array([c[k % 3] for k in range(8)])
-    assert not engine._follows(J, cycle, xstar)
-    assert not engine._follows(J, cycle, xstar, chained=False)
+    assert not orbits._follows(J, cycle, xstar)
+    assert not orbits._follows(J, cycle, xstar, chained=False)
     # three steps that fit one at a time, then a kick: not followed, chained or not
     kicked = X.copy()
     kicked[4:] += 0.5 * np.abs(X[4] - xstar).max() * rng.normal(size=n)
-    assert engine._follows(J, kicked[:4], xstar)
-    assert not engine._follows(J, kicked, xstar)
-    assert not engine._follows(J, kicked, xstar, chained=False)
-    assert not engine._follows(J, X[:1], xstar)  # one sample shows nothing
+    assert orbits._follows(J, kicked[:4], xstar)
+    assert not orbits._follows(J, kicked, xstar)
+    assert not orbits._follows(J, kicked, xstar, chained=False)
+    assert not orbits._follows(J, X[:1], xstar)  # one sample shows nothing
 
 
 @pytest.mark.parametrize("top", [0.999, -0.999])
@@ -130,18 +131,18 @@ def test_near_a_multiplier_of_modulus_one_the_samples_must_show_the_approach(top
     rng, Q, J, xstar = affine_map(4, top)
     slow = 1e-3 * Q[:, 0]
     approach = np.array([xstar + top**j * slow for j in range(8)])
-    assert engine._follows(J, approach, xstar)
+    assert orbits._follows(J, approach, xstar)
     # samples converging to a nearby orbit instead (nightly paper-params at γ_r 1: a period-2
     # orbit around a period-1 orbit of multiplier -0.9995) come 13 % closer over the same
     # steps: within LINEAR_FIT of the map's prediction at every sample, but 18 times the
     # approach it predicts
     other = np.array([xstar + (0.98 * np.sign(top)) ** j * slow for j in range(8)])
     D = other - xstar
-    assert all(np.max(np.abs(D[j] - top**j * slow)) <= engine.LINEAR_FIT * np.max(np.abs(D[j]))
+    assert all(np.max(np.abs(D[j] - top**j * slow)) <= cfg.LINEAR_FIT * np.max(np.abs(D[j]))
                for j in range(8))  # fmt: skip
-    assert not engine._follows(J, other, xstar)
+    assert not orbits._follows(J, other, xstar)
     # one step at a time the map cannot tell them apart: that test only vetoes irregular claims
-    assert engine._follows(J, other, xstar, chained=False)
+    assert orbits._follows(J, other, xstar, chained=False)
 
 
 def turning_map(rho: float, turn: float) -> tuple[np.ndarray, np.ndarray]:
@@ -173,17 +174,17 @@ def test_the_approach_is_measured_whatever_the_phase_of_a_turning_deviation():
     # the map's prediction at every sample: the max-norm's fourfold fall over the turn is no
     # approach, and they must not pass
     circling = np.array([xstar + np.linalg.matrix_power(N, j) @ wide for j in range(8)])
-    assert engine._follows(M, circling, xstar, chained=False)
-    assert not engine._follows(M, circling, xstar)
+    assert orbits._follows(M, circling, xstar, chained=False)
+    assert not orbits._follows(M, circling, xstar)
     # the map's own approach passes from either phase: from the short axis the max-norm grows
     # over the turn, and a max-norm comparison would see no approach at all
     short = np.linalg.matrix_power(N, 3) @ wide
     assert np.max(np.abs(np.linalg.matrix_power(M, 7) @ short)) > np.max(np.abs(short))
     for d0 in (wide, short):
         approach = np.array([xstar + np.linalg.matrix_power(M, j) @ d0 for j in range(8)])
-        assert engine._follows(M, approach, xstar)
+        assert orbits._follows(M, approach, xstar)
     # a map that does not contract shows no approach
-    assert not engine._follows(N, circling, xstar)
+    assert not orbits._follows(N, circling, xstar)
 
 
 def test_a_nearly_defective_map_measures_the_approach_by_its_slowest_contraction():
@@ -193,12 +194,12 @@ def test_a_nearly_defective_map_measures_the_approach_by_its_slowest_contraction
     xstar = np.array([1.0, 2.0, -1.0])
     d0 = np.array([1e-4, 1e-5, 1e-5])
     approach = np.array([xstar + np.linalg.matrix_power(M, j) @ d0 for j in range(8)])
-    assert engine._follows(M, approach, xstar)
+    assert orbits._follows(M, approach, xstar)
     # samples off the prediction by 5 % of it at the newest step: a third of that approach
     off = approach.copy()
     off[-1] += 0.05 * np.max(np.abs(off[-1] - xstar))
-    assert not engine._follows(M, off, xstar)
-    assert engine._follows(M, off[:-1], xstar)
+    assert not orbits._follows(M, off, xstar)
+    assert orbits._follows(M, off[:-1], xstar)
 
 
 def test_an_orbit_whose_neighbourhood_has_grazing_impacts_is_not_reported():
@@ -256,7 +257,7 @@ def test_mser_cuts_the_transient_and_flags_a_trend():
     rng = np.random.default_rng(2)
     stationary = 1.0 + 0.1 * rng.normal(size=400)
     st = series_stats(np.concatenate([np.linspace(3.0, 1.2, 30), stationary]))
-    assert 25 <= st.start <= 60 and st.start % engine.MSER_BATCH == 0
+    assert 25 <= st.start <= 60 and st.start % cfg.MSER_BATCH == 0
     assert st.mean == pytest.approx(1.0, abs=0.02) and st.trend < 3.0 and st.decorrelated
     assert st.se == pytest.approx(0.1 / math.sqrt(st.n), rel=0.3) and st.warmed_up
     # a transient longer than half the record: the cut says the record is too short
@@ -315,12 +316,12 @@ def test_a_slow_modulation_is_not_taken_for_decorrelated_batches():
     rng = np.random.default_rng(3)
     y = 1.0 + 0.01 * np.sin(2 * np.pi * k / 900.0) + 1e-4 * rng.normal(size=k.size)
     st = series_stats(y)
-    assert not st.decorrelated and st.batches >= engine.MIN_BATCHES
+    assert not st.decorrelated and st.batches >= cfg.MIN_BATCHES
     # a pattern that repeats every 3 periods under noise: almost periodic, at lag 3; independent
     # values are not
     pattern = np.tile([1.0, 1.2, 0.9], 200) + 0.01 * rng.normal(size=600)
     st = series_stats(pattern)
-    assert st.repeat == 3 and st.closeness < engine.ALMOST_PERIODIC
+    assert st.repeat == 3 and st.closeness < cfg.ALMOST_PERIODIC
     assert series_stats(1.0 + 0.1 * rng.normal(size=600)).closeness > 0.8
 
 
@@ -449,7 +450,7 @@ def test_newton_on_the_exact_matrix_finds_the_orbit_extrapolation_finds_for_less
     # (the other methods) the sequence is continued and extrapolated again
     p = cell(gamma_r=gamma_r, coupling=coupling)
     newton = simulate_point(p)
-    monkeypatch.setattr(engine, "_newton_step", lambda *a: None)
+    monkeypatch.setattr(orbits, "_newton_step", lambda *a: None)
     cycles = simulate_point(p)
     assert newton.outcome == cycles.outcome == "periodic"
     assert newton.response_period == cycles.response_period
@@ -603,28 +604,28 @@ def test_a_slowly_converging_long_orbit_vetoes_the_irregular_claim():
 
 def test_steadily_shrinking_differences_show_a_long_orbit_being_approached():
     rng = np.random.default_rng(5)
-    n, p, nx = engine.HISTORY, 13, 6
+    n, p, nx = cfg.HISTORY, 13, 6
     orbit = rng.normal(size=(p, nx))
     # a period-13 orbit approached at a multiplier of 0.62 a return (0.964 a period), the
     # newest samples 1e-4 from it
     dev = rng.normal(size=(p, nx))
     X = np.array([orbit[k % p] + 0.964 ** (k - n) * 1e-4 * dev[k % p] for k in range(n)])
-    assert engine._shrinking_p(X, n, ms.MAX_PERIOD) == 13
+    assert orbits._shrinking_p(X, n, ms.MAX_PERIOD) == 13
     # not while fewer samples than seven returns and one more period are kept
-    assert engine._shrinking_p(X, 7 * p, ms.MAX_PERIOD) == 0
+    assert orbits._shrinking_p(X, 7 * p, ms.MAX_PERIOD) == 0
     # the hundredfold test over the last 32 periods does not see it (0.31-fold)
-    assert engine._converging_p(X[-engine.RECENT :], engine.RECENT // 2 - 1) == 0
+    assert orbits._converging_p(X[-cfg.RECENT :], cfg.RECENT // 2 - 1) == 0
     # sequences that do not converge: noise, and an orbit circled at a constant distance
     for seed in range(20):
         noise = np.random.default_rng(seed).normal(size=(n, nx))
-        assert engine._shrinking_p(noise, n, ms.MAX_PERIOD) == 0
+        assert orbits._shrinking_p(noise, n, ms.MAX_PERIOD) == 0
     circled = np.array([orbit[k % p] + 1e-2 * dev[(k + k // p) % p] for k in range(n)])
-    assert engine._shrinking_p(circled, n, ms.MAX_PERIOD) == 0
+    assert orbits._shrinking_p(circled, n, ms.MAX_PERIOD) == 0
 
 
 def test_an_unsettled_reason_names_the_period_of_the_orbit_approached():
     rng = np.random.default_rng(5)
-    n, nx = engine.HISTORY, 6
+    n, nx = cfg.HISTORY, 6
     k = np.arange(n)
     fixed, slow, other = rng.normal(size=nx), rng.normal(size=nx), rng.normal(size=nx)
     # a period-1 state approached along a multiplier of -0.998: the 2-spaced differences are
@@ -632,56 +633,56 @@ def test_an_unsettled_reason_names_the_period_of_the_orbit_approached():
     # cell, seed 11's cell 309, whose unsettled reason named a period-2 orbit; a ten times
     # longer run reaches a period-1 orbit)
     X = fixed + np.outer((-0.998) ** k * 2e-2, slow)
-    assert engine._creeping_p(X, n, 35) == 2  # the 1-spaced ones beyond CREEP_NEAR
-    assert engine._own_period(X, n, 2) == 1
-    assert engine._own_period(X, n, 6) == 1
+    assert orbits._creeping_p(X, n, 35) == 2  # the 1-spaced ones beyond CREEP_NEAR
+    assert orbits._own_period(X, n, 2) == 1
+    assert orbits._own_period(X, n, 6) == 1
     # a period-2 orbit approached at 0.998 a period: its 1-spaced differences keep its size
     Y = fixed + np.outer((-1.0) ** k * 0.1, other) + np.outer(0.998**k * 2e-2, slow)
-    assert engine._own_period(Y, n, 2) == 2
-    assert engine._own_period(Y, n, 4) == 2
+    assert orbits._own_period(Y, n, 2) == 2
+    assert orbits._own_period(Y, n, 4) == 2
     # too few samples for stretches of a return: the period the tests found
-    assert engine._own_period(X, 20, 6) == 6
+    assert orbits._own_period(X, 20, 6) == 6
 
 
 def test_differences_that_creep_down_show_an_orbit_approached_at_a_multiplier_near_1():
     rng = np.random.default_rng(7)
-    n, nx = engine.HISTORY, 6
+    n, nx = cfg.HISTORY, 6
     fixed = rng.normal(size=nx)
     dev = rng.normal(size=nx)
     # a period-1 state approached at 0.9985 a period from 2 % of the state's size: the
     # differences (~3e-5 of it) shrink by only 1 % over seven returns and 5 % over the last
     # 32 periods
     X = np.array([fixed + 0.9985 ** (k - n) * 0.02 * dev for k in range(n)])
-    assert engine._shrinking_p(X, n, ms.MAX_PERIOD) == 0
-    assert engine._converging_p(X[-engine.RECENT :], engine.RECENT // 2 - 1) == 0
-    assert engine._creeping_p(X, n, ms.MAX_PERIOD) == 1
+    assert orbits._shrinking_p(X, n, ms.MAX_PERIOD) == 0
+    assert orbits._converging_p(X[-cfg.RECENT :], cfg.RECENT // 2 - 1) == 0
+    assert orbits._creeping_p(X, n, ms.MAX_PERIOD) == 1
     # a period-3 orbit approached as slowly; its 1- and 2-spaced differences do not shrink
     orbit = rng.normal(size=(3, nx))
     devs = rng.normal(size=(3, nx))
     Y = np.array([orbit[k % 3] + 0.9985 ** (k - n) * 0.04 * devs[k % 3] for k in range(n)])
-    assert engine._converging_p(Y[-engine.RECENT :], engine.RECENT // 2 - 1) == 0
-    assert engine._creeping_p(Y, n, ms.MAX_PERIOD) == 3
+    assert orbits._converging_p(Y[-cfg.RECENT :], cfg.RECENT // 2 - 1) == 0
+    assert orbits._creeping_p(Y, n, ms.MAX_PERIOD) == 3
     # not while the samples kept hold differences that are a sizeable part of the state (an
     # approach still young, or chaos) ...
     far = np.array([fixed + 0.95 ** (k - n) * dev for k in range(n)])
-    assert engine._creeping_p(far, n, ms.MAX_PERIOD) == 0
+    assert orbits._creeping_p(far, n, ms.MAX_PERIOD) == 0
     # ... nor for noise, a deviation that rotates at a constant distance (a torus), or one
     # that grows
     for seed in range(20):
         noise = fixed + 1e-4 * np.random.default_rng(seed).normal(size=(n, nx))
-        assert engine._creeping_p(noise, n, ms.MAX_PERIOD) == 0
+        assert orbits._creeping_p(noise, n, ms.MAX_PERIOD) == 0
     a, b = rng.normal(size=nx), rng.normal(size=nx)
     torus = np.array([fixed + 1e-4 * (np.cos(0.3 * k) * a + np.sin(0.3 * k) * b)
                       for k in range(n)])  # fmt: skip
-    assert engine._creeping_p(torus, n, ms.MAX_PERIOD) == 0
+    assert orbits._creeping_p(torus, n, ms.MAX_PERIOD) == 0
     grows = np.array([fixed + 1.001 ** (k - n) * 0.02 * dev for k in range(n)])
-    assert engine._creeping_p(grows, n, ms.MAX_PERIOD) == 0
+    assert orbits._creeping_p(grows, n, ms.MAX_PERIOD) == 0
     # nor where they fall too little to tell from a slow modulation (0.9998 a period: 5 %
     # over the stretches)
     slow = np.array([fixed + 0.9998 ** (k - n) * 0.02 * dev for k in range(n)])
-    assert engine._creeping_p(slow, n, ms.MAX_PERIOD) == 0
+    assert orbits._creeping_p(slow, n, ms.MAX_PERIOD) == 0
     # and not before each of the eight stretches holds a return
-    assert engine._creeping_p(X, 8, ms.MAX_PERIOD) == 0
+    assert orbits._creeping_p(X, 8, ms.MAX_PERIOD) == 0
 
 
 def test_a_slow_approach_is_not_claimed_irregular_by_tight_plain_iteration():
@@ -708,8 +709,8 @@ def test_a_slow_approach_is_not_claimed_irregular_by_tight_plain_iteration():
 
 def test_a_repeat_near_a_shorter_period_waits_until_it_is_proven():
     rng = np.random.default_rng(11)
-    n, nx, tol = engine.HISTORY, 6, 1e-9
-    near = engine.AMBIGUOUS * tol
+    n, nx, tol = cfg.HISTORY, 6, 1e-9
+    near = cfg.AMBIGUOUS * tol
     fixed = rng.normal(size=nx)
     slow, fast = rng.normal(size=nx), rng.normal(size=nx)
     # A period-1 state approached at a multiplier of -0.983 (a period-doubling's near side) and a
@@ -722,7 +723,7 @@ def test_a_repeat_near_a_shorter_period_waits_until_it_is_proven():
     X = X.clip(-1e3, 1e3)  # the oldest samples: far out, as a transient is
     scale = np.max(np.abs(X[-1]))
     assert np.max(np.abs(X[-1] - X[-3])) <= tol * scale < np.max(np.abs(X[-1] - X[-2]))
-    assert not engine._divisors_steady(X, n, 2, near, tol)
+    assert not orbits._divisors_steady(X, n, 2, near, tol)
     # A slower mode, -0.9985 (the θ 1 variant's gap 0.1, γ_r 0.62, which tight plain iteration
     # called period 2): over 64 periods its 1-spaced differences shrink by only 10 %, over the
     # ~300 the samples hold by 1.6-fold
@@ -730,23 +731,23 @@ def test_a_repeat_near_a_shorter_period_waits_until_it_is_proven():
     e = [np.max(np.abs(S[-1 - j] - S[-2 - j])) for j in (0, 64)]
     assert e[1] / e[0] < 1.11
     assert np.max(np.abs(S[-1] - S[-3])) <= 1e-12 * np.max(np.abs(S[-1]))
-    assert not engine._divisors_steady(S, n, 2, 1e3 * 1e-12, 1e-12)
+    assert not orbits._divisors_steady(S, n, 2, 1e3 * 1e-12, 1e-12)
     # a period-2 orbit whose two states are as close (2e-8), reached before the samples
     # kept, is one
     orbit = np.array([fixed, fixed + 2e-8 * slow])
     Y = orbit[np.arange(n) % 2] + np.outer(0.8**k * 1e-40, fast)
-    assert engine._divisors_steady(Y, n, 2, near, tol)
+    assert orbits._divisors_steady(Y, n, 2, near, tol)
     # ... but not while the samples still hold its approach, nor with fewer than 2p + 1 of them
     # a return back
     Y = orbit[np.arange(n) % 2] + np.outer(0.8**k * 1e-14, fast)
-    assert not engine._divisors_steady(Y, n, 2, near, tol)
-    assert not engine._divisors_steady(Y[-7:], 7, 2, near, tol)
+    assert not orbits._divisors_steady(Y, n, 2, near, tol)
+    assert not orbits._divisors_steady(Y[-7:], 7, 2, near, tol)
     # states farther apart than `near` are distinct whatever the history, and a difference
     # within 10·tol is the kernel's own divisor test (it reports the shorter period)
     far = np.array([fixed, 1.5 * fixed])[np.arange(n) % 2] + np.outer(0.5**k, fast)
-    assert engine._divisors_steady(far.clip(-1e3, 1e3), n, 2, near, tol)
+    assert orbits._divisors_steady(far.clip(-1e3, 1e3), n, 2, near, tol)
     W = np.array([fixed, fixed + 5e-10 * slow])[np.arange(n) % 2] + np.outer(0.5**k, fast)
-    assert engine._divisors_steady(W.clip(-1e3, 1e3), n, 2, near, tol)
+    assert orbits._divisors_steady(W.clip(-1e3, 1e3), n, 2, near, tol)
 
 
 @pytest.mark.parametrize("tol", [1e-9, 1e-12])

@@ -1,4 +1,4 @@
-"""A point's budget and cancel (worker/solvers/engine.py): limits hold, batches do not matter."""
+"""A point's budget and cancel (worker/solvers/engine/): limits hold, batches do not matter."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ from worker.simulate import (
     simulate_chunk,
     simulate_point,
 )
-from worker.solvers import engine
+from worker.solvers.engine import config as cfg
+from worker.solvers.engine import loop
 from worker.solvers.event.driver import EventRun
 
 # An irregular point: runs hundreds of periods before it may end (tests/worker/test_engine.py).
@@ -88,7 +89,7 @@ def test_a_chunk_passes_its_limits_to_every_point():
 
 @pytest.mark.parametrize("method", ["event", "exponential", "euler"])
 def test_short_batches_give_the_same_numbers_to_the_bit(monkeypatch, method):
-    # Slow periods shorten the batches between limit checks (engine._pace, by the clock), so
+    # Slow periods shorten the batches between limit checks (loop._Engine._pace, by the clock), so
     # where a batch starts must change nothing: the kernels carry their state over exactly,
     # and a window is measured whole or not at all. (Before, a batch starting inside the
     # window where measuring begins measured part of it: an irregular Γ moved by ~1e-8 dB
@@ -96,7 +97,7 @@ def test_short_batches_give_the_same_numbers_to_the_bit(monkeypatch, method):
     settings = SolverSettings(method=method)
     pts = (("irr", IRREGULAR), ("irr_a", IRREGULAR_A), ("per", PERIODIC))
     ref = {k: simulate_point(CellParams(**p), settings).as_dict() for k, p in pts}
-    monkeypatch.setattr(engine, "BATCH_S", 0.0)  # every batch counts as slow: one period each
+    monkeypatch.setattr(cfg, "BATCH_S", 0.0)  # every batch counts as slow: one period each
     short = {k: simulate_point(CellParams(**p), settings).as_dict() for k, p in pts}
     assert ref["irr"]["outcome"] == ref["irr_a"]["outcome"] == "irregular"
     assert ref["per"]["outcome"] == "periodic"
@@ -117,7 +118,7 @@ def test_short_batches_see_a_pending_orbit_reached_in_the_same_period(monkeypatc
     point = CellParams(g1=gap, g2=gap, **kw)
     settings = SolverSettings(max_periods=100, periodicity_tol=1e-13)
     ref = simulate_point(point, settings).as_dict()
-    monkeypatch.setattr(engine, "BATCH_S", 0.0)
+    monkeypatch.setattr(cfg, "BATCH_S", 0.0)
     short = simulate_point(point, settings).as_dict()
     assert ref["outcome"] == "periodic"
     ref.pop("wall_s"), short.pop("wall_s")
@@ -134,13 +135,13 @@ def _steps_at_monodromy(monkeypatch) -> list[int]:
             self, x0, n, measure, False, *arrays)
     )  # fmt: skip
     seen: list[int] = []
-    inner = engine._Engine._fd_radius
+    inner = loop._Engine._fd_radius
 
     def fd_radius(self, *args):
         seen.append(self.work["steps"])
         return inner(self, *args)
 
-    monkeypatch.setattr(engine._Engine, "_fd_radius", fd_radius)
+    monkeypatch.setattr(loop._Engine, "_fd_radius", fd_radius)
     return seen
 
 

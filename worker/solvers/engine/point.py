@@ -1,0 +1,157 @@
+"""One point from start to result: :func:`run_point` runs the engine and builds the
+``PointResult`` (with its history when asked for)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from worker.model import System
+from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittance_db
+from worker.solvers import measure as ms
+from worker.solvers.base import KernelRun
+from worker.solvers.engine import config as cfg
+from worker.solvers.engine.irregular import _statistics_result
+from worker.solvers.engine.loop import _Engine
+from worker.solvers.engine.orbits import _Orbit
+from worker.solvers.engine.tail import _finite_or_none, _undamped_reason, _with_reference
+from worker.solvers.linear import LinearTail
+from worker.solvers.settings import PointLimits, PointResult, SolverSettings
+
+
+def _overflowed(run: KernelRun) -> bool:
+    """Whether the run's history buffer dropped rows (more than it was sized for)."""
+    return int(run.kst[ms.K_HIST]) > run.hist.shape[0]
+
+
+def _rerun(run: KernelRun, start: np.ndarray, periods: int, cap: int) -> None:
+    """Run ``periods`` periods from ``start`` again (unmeasured), keeping the last ``cap``
+    history rows (0: none)."""
+    run.reset(start)
+    run.keep_history(cap)
+    if periods > 0:
+        run.advance(periods, False, 0, np.zeros((periods, ms.ROW)), np.zeros((periods, run.nx)))
+
+
+def _record_history(run: KernelRun, start: np.ndarray, periods: int) -> None:
+    """Record the history of ``periods`` periods from ``start``, whole: the buffer is sized
+    for the steps and up to ``history_rows_per_period`` events a period, and a chattering
+    orbit has more, so an overflow is run again with room for every row it wrote."""
+    cap = periods * run.history_rows_per_period()
+    while True:
+        _rerun(run, start, periods, cap)
+        if not _overflowed(run):
+            return
+        cap = int(run.kst[ms.K_HIST])
+
+
+def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
+              settings: SolverSettings, x0: np.ndarray, history_periods: int = 0,
+              limits: PointLimits | None = None,
+              cancelled: Callable[[], bool] | None = None) -> PointResult:  # fmt: skip
+    """Run one point to its proven end and build its result (see the module docstring).
+
+    ``make_run`` prepares the method's kernel run; it is not called for a point whose start is
+    already proven to be in the linear tail (unless a history is asked for). ``limits`` bound
+    the point's cost; ``cancelled()`` true makes it raise :class:`PointCancelled`."""
+    t0 = time.perf_counter()
+    p = sys_.params
+    T = 2.0 * math.pi / p.gamma_r
+    run: KernelRun | None = None
+    eng: _Engine | None = None
+    if settings.early_stop and settings.linear_tail and tail.proves(x0, cfg.TAIL_HORIZON * T):
+        # the start is already in the linear tail: nothing to simulate
+        outcome, info = ("linear", None) if tail.damped else ("failed", _undamped_reason(tail, 0))
+        work = dict(periods=0, steps=0, contact_steps=0, coarse_steps=0)
+        steady_period = 0
+    else:
+        run = make_run()
+        run.reset(x0)
+        eng = _Engine(run, sys_, tail, settings, limits or PointLimits(), cancelled)
+        if history_periods and not settings.early_stop:
+            run.keep_history(history_periods * run.history_rows_per_period())
+        outcome, info = eng.run_to_end()
+        work = eng.work
+        steady_period = eng.period
+    common = dict(
+        periods=work["periods"], steps=work["steps"], contact_steps=work["contact_steps"],
+        coarse_steps=work["coarse_steps"], steady_period=steady_period,
+        steps_per_period=run.spp if run is not None else 0,
+    )  # fmt: skip
+    kappa, theta = sys_.kappa, p.theta
+    history_start: np.ndarray | None = None
+    if outcome == "failed":
+        res = PointResult.failure(settings.method, str(info), **common)
+    elif outcome == "linear":
+        ss = tail.steady
+        assert ss is not None
+        res = PointResult(
+            outcome="linear", transmittance_db=ss.transmittance_db, transmittance_db_se=None,
+            amplitude=ss.amplitude, theta_eff=ss.theta_eff, theta_eff_slope=ss.theta_eff,
+            response_period=1, impacts_per_period=(0.0, 0.0), peak_impulse=0.0,
+            floquet_multiplier=math.exp(tail.max_re * T), wall_s=0.0, reason="",
+            method=settings.method, **common,
+        )  # fmt: skip
+        history_start = tail.xp0
+    elif outcome == "periodic":
+        orbit: _Orbit = info  # type: ignore[assignment]
+        rows = orbit.rows
+        amp = 0.5 * (rows[:, ms.M_SMAX].max() - rows[:, ms.M_SMIN].min())
+        h = rows[:, ms.M_S_RE : ms.M_VB + 1].sum(axis=0)
+        res = PointResult(
+            outcome="periodic",
+            transmittance_db=transmittance_db(amp, p.base_scale) if amp > 0 else None,
+            transmittance_db_se=None, amplitude=float(amp),
+            theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
+            theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
+            response_period=orbit.p,
+            impacts_per_period=(float(rows[:, ms.M_IMP1].sum() / len(rows)),
+                                float(rows[:, ms.M_IMP2].sum() / len(rows))),
+            peak_impulse=float(rows[:, ms.M_PEAK].max()),
+            floquet_multiplier=_finite_or_none(orbit.multiplier), wall_s=0.0, reason="",
+            method=settings.method, **common,
+        )  # fmt: skip
+        if res.transmittance_db is None:
+            res = PointResult.failure(settings.method, "no motion of the outer mass", **common)
+        history_start = orbit.x0
+    else:
+        assert eng is not None and run is not None
+        res = _statistics_result(eng, outcome, str(info or ""), common, kappa, theta)
+        if res.outcome == "irregular" and eng.may_be_transient:
+            res.may_be_transient = True
+            res.impacting_periods = eng.period
+        history_start = run.x.copy()
+    # the state a sweep line hands on: a period boundary of the reported response (the
+    # history, when asked for, starts there too)
+    if history_start is not None and not res.failed:
+        res.final_state = np.array(history_start, dtype=float)
+    offset = 0.0  # a history re-run from a later period end: its start on the main run's clock
+    if history_periods and outcome != "failed" and settings.early_stop:
+        if run is None:
+            run = make_run()
+        _record_history(run, history_start, history_periods)
+    elif history_periods and run is not None and eng is not None and _overflowed(run):
+        # early stop off: the main run recorded its last periods, but with more events than
+        # budgeted the oldest rows dropped out. Run them again from their first period end:
+        # a kept sample, or for a history longer than the HISTORY - 1 samples kept, the state
+        # the trajectory had there, reached again from the start (not for a failed point: it
+        # may have run out of its limits, and its history stays cut).
+        back = min(history_periods, eng.period)
+        start = None
+        if eng.nhistory > back:
+            start = eng.history[-1 - back].copy()
+        elif outcome != "failed":
+            _rerun(run, x0, eng.period - back, 0)
+            start = run.x.copy()
+        if start is not None:
+            _record_history(run, start, back)
+            offset = (eng.period - back) * T
+    if history_periods and run is not None:
+        res.history = run.history(p, kappa)
+        res.history["tau"] = res.history["tau"] + offset
+    _with_reference(res, tail)
+    res.wall_s = time.perf_counter() - t0
+    return res
