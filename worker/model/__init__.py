@@ -1,5 +1,20 @@
 """The model (docs/model.md): parameters, modal data, the equations of motion, closed forms."""
 
+from worker.model.chain import (
+    MAX_ASSEMBLED,
+    MAX_CELLS,
+    ChainParams,
+    ChainSteadyState,
+    ChainSystem,
+    assemble_chain,
+    bloch_exponent,
+    chain_linear_transmittance_db,
+    chain_steady_state,
+    chain_transfer_transmittance_db,
+    effective_mass,
+    stop_bands,
+    transfer_matrix,
+)
 from worker.model.modal import betas, mode_means, mode_shape, tip_values
 from worker.model.params import COUPLINGS, MAX_MODES, CellParams
 from worker.model.references import (
@@ -13,12 +28,23 @@ from worker.model.system import System, assemble, rayleigh_constants
 
 __all__ = [
     "COUPLINGS",
+    "MAX_ASSEMBLED",
+    "MAX_CELLS",
     "MAX_MODES",
     "CellParams",
+    "ChainParams",
+    "ChainSteadyState",
+    "ChainSystem",
     "SteadyState",
     "System",
     "assemble",
+    "assemble_chain",
     "betas",
+    "bloch_exponent",
+    "chain_linear_transmittance_db",
+    "chain_steady_state",
+    "chain_transfer_transmittance_db",
+    "effective_mass",
     "linear_transmittance_db",
     "mode_means",
     "mode_shape",
@@ -26,5 +52,7 @@ __all__ = [
     "pinned_transmittance_db",
     "rayleigh_constants",
     "steady_state",
+    "stop_bands",
     "tip_values",
+    "transfer_matrix",
 ]
