@@ -1,19 +1,22 @@
 """Which tests pin each tuning constant of the point engine (``worker/solvers/engine/config.py``).
 
-    python audits/config_pins.py [--only NAME,...] [--tests "tests/worker -m 'not slow'"]
-                                 [--discover] [--out audits/results]
+    python audits/config_pins.py [--only NAME,...] [--off] [--discover]
+                                 [--tests "tests/worker -m 'not slow'"] [--out audits/results]
 
-For every constant whose value is a number literal, two variants: half and double (an integer
-at least 1; a count that would not change is moved by one). Each variant runs in a fresh
-pytest (``python -m pytest -n 2``) with the constant set for the whole session by the plugin in
-this file (``IMPACTCELL_CONFIG_OVERRIDE=NAME=VALUE``; ``config.HISTORY`` follows
+For every constant whose value is a number literal, two variants, half and double (an integer
+at least 1; a count that would not change is moved by one), and a third where the constant has
+an ``Off:`` line: the value that turns its rule off. Each variant runs in a fresh pytest
+(``python -m pytest -n 2``) with the constant set for the whole session by the plugin in this
+file (``IMPACTCELL_CONFIG_OVERRIDE=NAME=VALUE``; ``config.HISTORY`` follows
 ``SHRINK_RETURNS``). The engine reads ``cfg.NAME`` at call time and passes it to its compiled
 helpers, so nothing is recompiled.
 
 Default: run each constant's own ``Pinned by:`` tests and report whether at least one variant
-makes one of them fail (the pin holds the value from at least one side). ``--discover``: run
-the ``--tests`` selection instead and list every test that fails under each variant (what could
-pin a constant that has none). Writes ``config_pins.md``. Exit 1 when a pin holds nothing.
+makes one of them fail (the pins hold the value from at least one side, or hold the rule).
+``--off``: only the ``Off:`` variants (a rule no test needs even when off is a candidate to
+drop). ``--discover``: run the ``--tests`` selection instead and list every test that fails
+under each variant (what could pin a constant that has none). Writes ``config_pins*.md``.
+Exit 1 (default mode) when the pins of a constant hold nothing.
 """
 
 from __future__ import annotations
@@ -36,29 +39,46 @@ ENV = "IMPACTCELL_CONFIG_OVERRIDE"
 
 
 def constants(path: Path = CONFIG) -> dict[str, tuple[float | int, list[str]]]:
-    """Every module-level constant with a number literal value, and its ``Pinned by:`` tests."""
-    text = path.read_text()
-    lines = text.splitlines()
+    """Every module-level constant with a number literal value, and its pins as pytest node ids
+    (``module::test`` lines under ``# Pinned by:``, modules of ``tests/worker/``). Constants
+    assigned one after the other share the comment block above the first."""
+    lines = path.read_text().splitlines()
     out: dict[str, tuple[float | int, list[str]]] = {}
-    for node in ast.parse(text).body:
-        if not (isinstance(node, ast.Assign) and len(node.targets) == 1):
+    pins: list[str] = []
+    collecting = after_assign = False
+    for line in lines:
+        if line.startswith("#"):
+            if after_assign or line.startswith("# ---"):
+                pins, after_assign = [], False
+            if line.startswith("# Pinned by:"):
+                collecting = True
+            elif collecting and (m := re.match(r"^#\s+(\w+)::(\w+)$", line)):
+                pins.append(f"tests/worker/{m.group(1)}.py::{m.group(2)}")
+            else:
+                collecting = False
             continue
-        name = getattr(node.targets[0], "id", "")
-        if not name.isupper() or not isinstance(node.value, ast.Constant):
-            continue
-        pins: list[str] = []
-        for back in range(node.lineno - 2, -1, -1):  # the comment block above (shared ones too)
-            line = lines[back]
-            if not line.startswith("#"):
-                if line.strip() and not re.match(r"^[A-Z_]+ = ", line):
-                    break
-                continue
-            m = re.match(r"# Pinned by: (.*)", line)
-            if m:
-                pins = [p.strip() for p in m.group(1).split(",") if p.strip()]
-                break
-        out[name] = (node.value.value, pins)
+        collecting = False
+        m = re.match(r"^([A-Z_]+) = (.+)$", line)
+        if m:
+            after_assign = True
+            try:
+                value = ast.literal_eval(m.group(2).split("  #")[0].strip())
+            except (ValueError, SyntaxError):
+                continue  # derived from others: not moved on its own
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                out[m.group(1)] = (value, list(pins))
     return out
+
+
+def offs(path: Path = CONFIG) -> dict[str, float | int]:
+    """The value that switches each rule off, from the ``# Off: NAME = VALUE`` lines."""
+    found = re.findall(r"^# Off: ([A-Z_]+) = (\S+)$", path.read_text(), re.M)
+    return {name: _number(value) for name, value in found}
+
+
+def _number(text: str) -> float | int:
+    """A Python number literal, or ``inf``."""
+    return float(text) if text in ("inf", "-inf") else ast.literal_eval(text)
 
 
 def variants(value: float | int) -> list[float | int]:
@@ -98,7 +118,7 @@ def pytest_configure(config: object) -> None:
     from worker.solvers.engine import config as cfg
 
     name, _, value = given.partition("=")
-    setattr(cfg, name, ast.literal_eval(value))
+    setattr(cfg, name, _number(value))
     if name == "SHRINK_RETURNS":
         cfg.HISTORY = (cfg.SHRINK_RETURNS + 2) * ms.MAX_PERIOD
 
@@ -108,10 +128,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="constants to check, comma-separated")
     ap.add_argument("--discover", action="store_true",
                     help="run --tests and list every failing test per variant")  # fmt: skip
+    ap.add_argument("--off", action="store_true",
+                    help="one variant per constant: the value that turns its rule off")  # fmt: skip
     ap.add_argument("--tests", default="tests/worker -m 'not slow'")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = ap.parse_args(argv)
     found = constants()
+    off = offs()
     only = [n for n in args.only.split(",") if n]
     unknown = [n for n in only if n not in found]
     if unknown:
@@ -135,7 +158,9 @@ def main(argv: list[str] | None = None) -> int:
             lines.append(f"| {name} | {value!r} | – | no pin named | – | – |")
             continue
         held = False
-        for v in variants(value):
+        own_off = [off[name]] if name in off else []
+        chosen = own_off if args.off else variants(value) + own_off
+        for v in chosen:
             failed, total, dt = run(tests, name, v)
             held |= bool(failed)
             shown = ", ".join(sorted(f.split("::")[-1] for f in failed)) or "none"
@@ -145,10 +170,11 @@ def main(argv: list[str] | None = None) -> int:
             loose.append(name)
     lines += ["", f"Constants no variant of which fails a test run: {', '.join(loose) or 'none'}."]
     args.out.mkdir(parents=True, exist_ok=True)
-    name = "config_pins_discover.md" if args.discover else "config_pins.md"
+    name = "config_pins" + ("_discover" if args.discover else "") + ("_off" if args.off else "")
+    name += ".md"
     (args.out / name).write_text("\n".join(lines) + "\n")
     print(lines[-1])
-    return 1 if loose and not args.discover else 0
+    return 1 if loose and not (args.discover or args.off) else 0
 
 
 if __name__ == "__main__":

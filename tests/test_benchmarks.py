@@ -623,15 +623,18 @@ def test_config_pins_reads_every_constant_and_its_pins(tmp_path: Path) -> None:
     cp = _load("config_pins")
     cfg = tmp_path / "config.py"
     cfg.write_text(
-        "# A.\n# Trades: x.\n# Pinned by: tests/a.py::test_a, tests/b.py::test_b\nA = 3\n"
-        "B = 0.5\n\n# C.\n# Pinned by: tests/c.py::test_c\nC = 2.0\nD = (A + 1) * 2\n"
+        "# A.\n# Trades: x.\n# Off: A = 0\n# Pinned by:\n#   test_a::test_one\n"
+        "#   test_b::test_two\nA = 3\nB = 0.5\n\n# C.\n# Pinned by:\n#   test_c::test_c\n"
+        "C = 2.0\nD = (A + 1) * 2\n\n# E: nothing pins it.\nE = 1e-3\n"
     )
-    got = cp.constants(cfg)
-    assert got == {
-        "A": (3, ["tests/a.py::test_a", "tests/b.py::test_b"]),
-        "B": (0.5, ["tests/a.py::test_a", "tests/b.py::test_b"]),  # shares A's block
-        "C": (2.0, ["tests/c.py::test_c"]),
-    }  # D is derived: not perturbed on its own
+    a_pins = ["tests/worker/test_a.py::test_one", "tests/worker/test_b.py::test_two"]
+    assert cp.constants(cfg) == {
+        "A": (3, a_pins),
+        "B": (0.5, a_pins),  # shares A's block
+        "C": (2.0, ["tests/worker/test_c.py::test_c"]),
+        "E": (1e-3, []),
+    }  # D is derived: not moved on its own
+    assert cp.offs(cfg) == {"A": 0}
 
 
 def test_kernel_cost_fits_the_loops_per_period_impact_and_call() -> None:

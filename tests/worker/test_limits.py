@@ -169,3 +169,49 @@ def test_cancel_is_seen_during_the_monodromy_check(monkeypatch):
     with pytest.raises(PointCancelled):
         simulate_point(CellParams(**PERIODIC), cancelled=cancelled)
     assert len(polls_in_check) == 2
+
+
+class _SlowClock:
+    """A clock on which every reading is a second after the last: every batch looks slow."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        self.now += 1.0
+        return self.now
+
+
+def test_slow_batches_are_cut_short(monkeypatch):
+    # Where periods are slow, the batches between limit checks shrink to about BATCH_S of
+    # work, so cancel is seen within a few periods, not a window of them (20 periods here).
+    monkeypatch.setattr(loop, "time", _SlowClock())
+    polls = []
+
+    def cancelled() -> bool:
+        polls.append(1)
+        return len(polls) >= 6
+
+    window = SolverSettings().window
+    with pytest.raises(PointCancelled, match=r"cancelled in period (\d+)") as info:
+        simulate_point(CellParams(**IRREGULAR), limits=PointLimits(wall_s=3600.0),
+                       cancelled=cancelled)  # fmt: skip
+    period = int(str(info.value).rsplit(" ", 1)[-1])
+    assert period < window + 10  # unpaced, six polls would come six windows in
+
+
+@pytest.mark.parametrize("gamma_r", [2.3624161073825505, 0.9697986577181208])
+def test_a_reached_pending_orbit_is_seen_within_pending_batch_periods(monkeypatch, gamma_r):
+    # Once the trajectory is seen approaching a pending orbit (at a batch end) the batches are
+    # PENDING_BATCH periods long: the point reports the orbit at most 8 periods after
+    # one-period batches do, with the same numbers (window-long batches: up to a window later).
+    kw = dict(theta=0.3, sigma=0.05, gamma_s=1.0, xi=0.05, gamma_r=gamma_r)
+    gap = 0.1 if gamma_r > 2.0 else 0.3
+    point = CellParams(g1=gap, g2=gap, **kw)
+    settings = SolverSettings(max_periods=100, periodicity_tol=1e-13)
+    got = simulate_point(point, settings)
+    monkeypatch.setattr(cfg, "PENDING_BATCH", 1)
+    soonest = simulate_point(point, settings)
+    assert got.outcome == soonest.outcome == "periodic"
+    assert got.transmittance_db == soonest.transmittance_db
+    assert 0 <= got.steady_period - soonest.steady_period <= 8

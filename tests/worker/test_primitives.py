@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from worker.model import CellParams, assemble
-from worker.simulate import DIVERGENCE_FACTOR, RUNS, SolverSettings, linear_tail
+from worker.simulate import RUNS, SolverSettings, linear_tail
 from worker.solvers import measure as ms
+from worker.solvers.engine.config import DIVERGENCE_FACTOR
 from worker.solvers.event import primitives as pm
 from worker.solvers.event.regimes import R_S, R_SB, R_SBD, R_SD, prepare_event
 

@@ -12,19 +12,13 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
-from worker.observables import theta_eff_harmonic, theta_eff_slope
 from worker.solvers import measure as ms
 from worker.solvers.engine import config as cfg
-from worker.solvers.engine.tail import _finite_or_none
-from worker.solvers.settings import TRANSIENT_NOTE, PointResult
-
-if TYPE_CHECKING:
-    from worker.solvers.engine.loop import _Engine
+from worker.solvers.settings import TRANSIENT_NOTE
 
 # Part of an irregular point's reason where its standard error cannot be trusted
 # (``IrregularClaims._distrust``); ``TRANSIENT_NOTE`` where the motion may be transient.
@@ -181,16 +175,15 @@ class SeriesStats:
     batches: int
     decorrelated: bool  # the batch means' lag-1 autocorrelation is insignificant
     trend: float  # t-statistic of the batch means' least-squares slope
-    halves: float  # t-statistic of the difference between the two halves' means
     warmed_up: bool  # the transient cut lies in the first half (else the record is too short)
     repeat: int  # the lag (≤ measure.MAX_PERIOD) at which the values come closest to repeating
     closeness: float  # how close (:func:`_repeat`): below ALMOST_PERIODIC, almost periodic
 
     @property
     def steady(self) -> bool:
-        """Whether a longer record has nothing to mend: the transient is cut in the first half,
-        the batch means decorrelated and the halves agree."""
-        return self.warmed_up and self.decorrelated and self.halves <= cfg.MAX_HALVES
+        """Whether a longer record has nothing to mend: the transient is cut in the first half
+        and the batch means decorrelated."""
+        return self.warmed_up and self.decorrelated
 
 
 def series_stats(y: np.ndarray) -> SeriesStats:
@@ -204,19 +197,18 @@ def series_stats(y: np.ndarray) -> SeriesStats:
     ``MIN_BATCHES``. It is widened by ``√((1 + r₁)/(1 − r₁))`` for the correlation left
     (r₁ clipped to [0, 0.95]) and by :func:`few_batches_factor` for the few batches it may
     rest on (their sample variance is itself uncertain). ``trend`` is the batch means' least-
-    squares slope over its standard error, ``halves`` the difference between the means of their
-    first and second halves over its standard error (both widened for the correlation left):
-    a slow transient has a large trend, an intermittent response large halves.
+    squares slope over its standard error (widened for the correlation left): a slow transient
+    has a large trend. (An intermittent response shows as batch means that stay correlated.)
     """
     y = np.ascontiguousarray(y, dtype=np.float64)
     if len(y) == 0:
-        return SeriesStats(math.nan, None, 0, 0, 1, 0, False, 0.0, 0.0, False, 0, 1.0)
+        return SeriesStats(math.nan, None, 0, 0, 1, 0, False, 0.0, False, 0, 1.0)
     d = mser_start(y)
     z = y[d:]
     m = len(z)
     mean = float(z.mean())
     if m < 2:
-        return SeriesStats(mean, None, d, m, 1, m, False, 0.0, 0.0, 2 * d <= len(y), 0, 1.0)
+        return SeriesStats(mean, None, d, m, 1, m, False, 0.0, 2 * d <= len(y), 0, 1.0)
     b, r1, decorrelated = _batch_size(z, cfg.DECORRELATED, cfg.MIN_BATCHES, ms.MAX_PERIOD)
     k = m // b
     means = z[m - k * b :].reshape(k, b).mean(axis=1)
@@ -226,7 +218,7 @@ def series_stats(y: np.ndarray) -> SeriesStats:
     inflate = math.sqrt((1.0 + r1) / (1.0 - r1))
     sd = math.sqrt(ss / (k - 1))
     se = sd / math.sqrt(k) * inflate * few_batches_factor(k)
-    trend = halves = 0.0
+    trend = 0.0
     if k >= 3:
         i = np.arange(k) - (k - 1) / 2.0
         slope = float(i @ dev) / float(i @ i)
@@ -234,16 +226,8 @@ def series_stats(y: np.ndarray) -> SeriesStats:
         s_res = math.sqrt(float(resid @ resid) / (k - 2))
         se_slope = s_res / math.sqrt(float(i @ i)) * inflate
         trend = abs(slope) / se_slope if se_slope > 0.0 else (math.inf if slope else 0.0)
-    if k >= 4:
-        h = k // 2
-        a, c = means[:h], means[k - h :]
-        pooled = math.sqrt((float(((a - a.mean()) ** 2).sum()) + float(((c - c.mean()) ** 2).sum()))
-                           / (2 * h - 2))  # fmt: skip
-        se_diff = pooled * math.sqrt(2.0 / h) * inflate
-        diff = abs(float(a.mean() - c.mean()))
-        halves = diff / se_diff if se_diff > 0.0 else (math.inf if diff else 0.0)
     q, closeness = _repeat(z, ms.MAX_PERIOD)
-    return SeriesStats(mean, se, d, m, b, k, decorrelated, trend, halves, 2 * d <= len(y), q,
+    return SeriesStats(mean, se, d, m, b, k, decorrelated, trend, 2 * d <= len(y), q,
                        closeness)  # fmt: skip
 
 
@@ -378,7 +362,7 @@ class IrregularClaims:
     def _stats_converged(self, final: bool = False) -> bool:
         """Enough stationary periods, no trend, a standard error within the tolerance, and the
         stroboscopic sequence not converging to an orbit; before the budget's end also batch
-        means that decorrelated and halves that agree (a longer run may mend those)."""
+        means that decorrelated (a longer run may mend that)."""
         st = self.windows.stats()
         se = _se_db(st)
         return (se is not None and st.n >= self._min_stationary() and se <= self.s.stat_tol_db
@@ -394,7 +378,7 @@ class IrregularClaims:
         """Why the standard error of these statistics cannot be trusted ("" if it can): the
         transient cut lies past the middle of the record, the batch means never decorrelated
         (a modulation slower than a tenth of the span), the values nearly repeat (an almost
-        periodic response), the halves disagree (intermittency), or the cell is undamped
+        periodic response), or the cell is undamped
         (energy leaves only at impacts: the motion may change its character over far longer
         spans than any run; docs/accuracy.md)."""
         if not st.warmed_up:
@@ -408,9 +392,6 @@ class IrregularClaims:
             return (f"its per-period amplitudes nearly repeat every {st.repeat} periods (their "
                     f"differences {st.closeness:.2g} of those of independent values): an almost "
                     "periodic response, whose slow changes its record may not show")  # fmt: skip
-        if st.halves > cfg.MAX_HALVES:
-            return (f"the two halves of its {st.n} stationary periods differ by {st.halves:.3g} "
-                    "standard errors: an intermittent response")  # fmt: skip
         if not self.tail.damped:
             return ("the cell is undamped: energy leaves it only at impacts, and its motion may "
                     "change its character over far longer spans than this run")  # fmt: skip
@@ -441,31 +422,3 @@ class IrregularClaims:
     def _impacts_continue(self) -> bool:
         win = self.windows
         return sum(win.impacts[-1]) > 0 and win.last_impact[-1] >= 0.75 * win.window
-
-
-def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
-                       kappa: float, theta: float) -> PointResult:  # fmt: skip
-    """Γ, its standard error and the rest from the per-period statistics (irregular,
-    unsettled)."""
-    win = eng.windows
-    p = eng.p
-    if not len(win):
-        return PointResult.failure(eng.s.method, reason or "no window measured", **common)
-    st = win.stats()
-    db = _db(st.mean, p.base_scale)
-    if not math.isfinite(db):
-        return PointResult.failure(eng.s.method, "no motion of the outer mass", **common)
-    # the windows that lie in the stationary span, whole (θ_eff, the peak impulse)
-    span = range(min(-(-(win.first + st.start) // win.window), len(win) - 1), len(win))
-    h = sum((win.harm[i] for i in span if win.measured[i]), np.zeros(6))
-    imp = win.impacts[-1]
-    return PointResult(
-        outcome=outcome, transmittance_db=db, transmittance_db_se=_finite_or_none(_se_db(st)),
-        amplitude=st.mean,
-        theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
-        theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
-        response_period=0,
-        impacts_per_period=(float(imp[0] / win.window), float(imp[1] / win.window)),
-        peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
-        wall_s=0.0, reason=reason, method=eng.s.method, **common,
-    )  # fmt: skip

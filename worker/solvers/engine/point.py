@@ -14,7 +14,7 @@ from worker.observables import theta_eff_harmonic, theta_eff_slope, transmittanc
 from worker.solvers import measure as ms
 from worker.solvers.base import KernelRun
 from worker.solvers.engine import config as cfg
-from worker.solvers.engine.irregular import _statistics_result
+from worker.solvers.engine.irregular import _db, _se_db
 from worker.solvers.engine.loop import _Engine
 from worker.solvers.engine.orbits import _Orbit
 from worker.solvers.engine.tail import _finite_or_none, _undamped_reason, _with_reference
@@ -155,3 +155,31 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     _with_reference(res, tail)
     res.wall_s = time.perf_counter() - t0
     return res
+
+
+def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
+                       kappa: float, theta: float) -> PointResult:  # fmt: skip
+    """Γ, its standard error and the rest from the per-period statistics (irregular,
+    unsettled)."""
+    win = eng.windows
+    p = eng.p
+    if not len(win):
+        return PointResult.failure(eng.s.method, reason or "no window measured", **common)
+    st = win.stats()
+    db = _db(st.mean, p.base_scale)
+    if not math.isfinite(db):
+        return PointResult.failure(eng.s.method, "no motion of the outer mass", **common)
+    # the windows that lie in the stationary span, whole (θ_eff, the peak impulse)
+    span = range(min(-(-(win.first + st.start) // win.window), len(win) - 1), len(win))
+    h = sum((win.harm[i] for i in span if win.measured[i]), np.zeros(6))
+    imp = win.impacts[-1]
+    return PointResult(
+        outcome=outcome, transmittance_db=db, transmittance_db_se=_finite_or_none(_se_db(st)),
+        amplitude=st.mean,
+        theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
+        theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
+        response_period=0,
+        impacts_per_period=(float(imp[0] / win.window), float(imp[1] / win.window)),
+        peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
+        wall_s=0.0, reason=reason, method=eng.s.method, **common,
+    )  # fmt: skip
