@@ -93,6 +93,9 @@ _RERUNS = 2
 # Figure 5's ~4 ms a point, 32 points a task added ~15 %; 96 (61 tasks instead of 182) made its
 # run ~3 s shorter (benchmarks/run_command.py --chunk-size 32, 10 interleaved pairs); 192 no more.
 TASK_RETRIES = 2
+# Studies with at most this many points to compute keep their keys from the start to their
+# chunks' submission (``StudyRun.keys``): Figure 5's made them twice, 0.09 s of 0.5 s storing.
+_KEPT_KEYS = 200_000
 CONNECT_TIMEOUT = "10s"  # an unreachable scheduler is an error within seconds, not minutes
 # What an embedded cluster's servers (scheduler, nannies, workers) do on their event loops
 # only for a dashboard, done less often or not at all (``_quiet_embedded_cluster``): a 2-core
@@ -298,6 +301,10 @@ class StudyRun:
         self.shared = 0  # points of its chunks another run's task computed (ChunkPool)
         self.shared_pool = False  # another run was in its pool at the same time (ChunkPool)
         self.submitted = 0  # chunks handed to a pool (its fairness: fewer goes first)
+        # Keys of the points to compute, made once at the start (``_take_known``) and asked
+        # again as their chunks go out (``keys``); kept for studies of up to _KEPT_KEYS points
+        # still to compute (~90 bytes a key).
+        self._kept_keys: dict[int, str] = {}
         # A results file that fails its check is set aside here, and rebuilt by this run.
         self.cached = self.store.results_status() == "ok" and not self.store.has_retry_chunks()
         missing: list[tuple[int, int]] = []
@@ -326,6 +333,12 @@ class StudyRun:
 
     def keys(self, start: int, stop: int) -> list[str]:
         """Point keys of ``start:stop`` (work order; a sweep's: whole lines)."""
+        kept = self._kept_keys
+        if kept and start in kept and stop - 1 in kept:
+            try:
+                return [kept[i] for i in range(start, stop)]
+            except KeyError:  # a gap (points the store had): made anew
+                pass
         return study_keys(self.study, start, stop, solver=self._solver_doc)
 
     def _take_known(self, missing: list[tuple[int, int]]) -> list[tuple[int, int]]:
@@ -336,6 +349,7 @@ class StudyRun:
         block = self.study.line_length * max(1, 2048 // self.study.line_length) if self.lines \
             else 2048  # fmt: skip
         out: list[tuple[int, int]] = []
+        keep = sum(b - a for a, b in missing) <= _KEPT_KEYS
         for a, b in missing:
             for s in range(a, b, block):
                 if self.store.fence is not None:  # a huge grid takes minutes: stop once not ours
@@ -349,6 +363,8 @@ class StudyRun:
                     for i in range(0, e - s, n):
                         whole = all(have[i : i + n])
                         have[i : i + n] = [whole] * n
+                if keep:  # those of the points to compute, for their chunks (``keys``)
+                    self._kept_keys.update((s + i, k) for i, k in enumerate(keys) if not have[i])
                 self.points.link(self.study.id, [(s + i, k) for i, k in enumerate(keys) if have[i]])
                 i = 0
                 while i < e - s:

@@ -123,6 +123,32 @@ def test_sweep_points_are_chained_to_their_line() -> None:
         study_keys(sweep, 1, 2)
 
 
+def test_a_run_keys_its_points_once_and_as_they_are(store: Any, tmp_path: Path) -> None:
+    # The keys made at the start (what the store knows) are the ones its chunks go out with.
+    from service.studies.runner import StudyRun
+
+    point_store, _ = store
+    for sweep in (None, {"axis": "gamma_r", "directions": ["up", "down"]}):
+        grid = tiny_study("k", num=6)
+        if sweep:
+            grid["sweep"] = sweep
+        s = study(grid)
+        r = StudyRun(s, tmp_path / f"kept-{bool(sweep)}", points=point_store)
+        assert sorted(r._kept_keys) == list(range(s.size))  # nothing known: all to compute
+        n = s.line_length if sweep else 1
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr("service.studies.runner.study_keys", _no_keys_made)
+            got = [r.keys(a, min(a + 2 * n, s.size)) for a in range(0, s.size, 2 * n)]
+        assert got == [
+            pts.study_keys(s, a, min(a + 2 * n, s.size), solver=r._solver_doc)
+            for a in range(0, s.size, 2 * n)
+        ]
+
+
+def _no_keys_made(*_: Any, **__: Any) -> list[str]:
+    raise AssertionError("keys made again")
+
+
 def test_only_the_points_own_results_are_storable() -> None:
     assert pts.is_storable({"failed": False, "reason": ""})
     assert pts.is_storable({"failed": True, "reason": "diverged: |x| grew beyond ..."})
