@@ -61,7 +61,7 @@ from service.studies.points import (
 )
 from service.studies.schema import Study
 from service.studies.summary import Cancelled, RunSummary
-from service.studies.tasks import chunk_task, compute_chunk
+from service.studies.tasks import Points, chunk_task, compute_chunk
 from service.studies.variables import OUTCOMES, outcome_names
 from worker import cpu, simulate
 from worker.simulate import (
@@ -663,7 +663,7 @@ class ChunkPool:
             pts = run.points_of(start, stop)
             fut = self.client.submit(
                 chunk_task,
-                [pts[i] for i in compute],
+                Points([pts[i] for i in compute]),
                 run.solver,
                 self.limits,
                 self._events[key],

@@ -394,6 +394,33 @@ def test_on_a_warm_cache_workers_load_kernels_as_they_start_and_the_parent_loads
     assert netcdf_lock != "distributed"
 
 
+def test_a_chunk_travels_as_one_object_each_way() -> None:
+    # dask walks a plain list of point dicts for futures at every hop, and sends a plain list
+    # result one frame per record: Points and Records each go as one object, same contents.
+    import pickle
+
+    from dask._task_spec import parse_input
+    from distributed.protocol import deserialize, serialize
+
+    from service.studies.tasks import Points, Records, chunk_task
+
+    study = _study()
+    pts = study.points(0, 3)
+    sent = Points(pts)
+    assert parse_input(sent) is sent
+    assert pickle.loads(pickle.dumps(sent)).items == pts
+    solver = study.solver.settings().__dict__
+    records = chunk_task(sent, solver, {}, "no-event")
+    assert type(records) is Records
+    again = chunk_task(pts, solver, {}, "no-event")
+    plain = simulate_chunk(pts, solver)
+    for a, b, c in zip(records, again, plain, strict=True):
+        assert {**a, "wall_s": 0} == {**b, "wall_s": 0} == {**c, "wall_s": 0}
+    header, frames = serialize(records, iterate_collection=True)
+    assert len(frames) == 1
+    assert deserialize(header, frames) == records
+
+
 def test_a_cluster_that_cannot_start_is_an_error_in_the_caller(monkeypatch) -> None:
     import dask.distributed
 
