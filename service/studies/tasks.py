@@ -9,7 +9,7 @@ pydantic: ~1.3 s of imports per worker process before its first point).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from worker.cpu import check_target
@@ -42,6 +42,12 @@ class Points:
 
     def __init__(self, items: list[dict[str, Any]]) -> None:
         self.items = items
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __iter__(self) -> Iterator[dict[str, Any]]:
+        return iter(self.items)
 
     def __getstate__(self) -> list[dict[str, Any]]:
         return self.items
