@@ -137,6 +137,8 @@ CHECK_COST = 2
 # Trades: smaller, a trajectory passing a saddle along its stable manifold is taken as reached;
 # larger, points run longer before a reached orbit is reported.
 # Off: REACH_SHRINK = inf
+# (REACH_HOLD: no test holds its value within ×½…×2; three returns in a row is the guard
+# against a single close pass that the multiplier cannot rule out.)
 # Pinned by:
 #   test_engine_config::test_a_slowly_attracting_pending_orbit_is_reached_within_the_budget
 REACH_SHRINK = 100.0
@@ -217,6 +219,8 @@ MIN_STATIONARY = 200
 
 # Periods per batch of the MSER rule (MSER-5), and the batches it leaves at the fewest.
 # Trades: larger batches, a coarser transient cut; fewer kept, the rule's statistic is noise.
+# (MSER_BATCH: no test holds its value; 5 is the published MSER-5 rule, and MSER-1 cuts the
+# same transients at all 9,180 audited points.)
 # Off: MSER_BATCH = 1
 # Pinned by:
 #   test_engine::test_batch_means_give_the_error_of_an_autocorrelated_mean
