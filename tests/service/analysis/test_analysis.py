@@ -447,3 +447,14 @@ def test_real_study_linear_reference_and_impact_effect_maps(real: xr.Dataset) ->
     assert bandgap_json(bandgap_map(old, "gamma_r", "gap"))["variable"]["name"] == (
         "transmittance_db"
     )
+
+
+def test_a_complete_dataset_has_nothing_pending(real: xr.Dataset) -> None:
+    # A page that saw the study running asks for `pending` just as it finishes: the complete
+    # dataset answers that no point is pending (not an unknown variable).
+    assert "pending" not in real.data_vars
+    got = select(real, "pending", {})
+    assert got.dtype == bool and not got.values.any()
+    assert got.shape == real["outcome"].shape and got.name == "pending"
+    with pytest.raises(AnalysisError, match="variable='pendings' is not in the results"):
+        select(real, "pendings", {})
