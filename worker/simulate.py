@@ -24,7 +24,9 @@ import numpy as np
 from worker.compile_progress import compile_progress
 from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
+from worker.model.chain import ChainParams, assemble_chain
 from worker.numba_cache import exclusive, mark_done, marked_done, on_disk
+from worker.solvers.chain_euler import ChainEulerRun, chain_tail, engine_view
 from worker.solvers.dispatch import KERNELS, RUNS
 from worker.solvers.engine import compile_helpers, linear_reference_db, run_point
 from worker.solvers.engine import config as engine_config
@@ -45,6 +47,7 @@ from worker.solvers.settings import (
 )
 
 __all__ = [
+    "CHAIN_METHODS",
     "DEFAULT_METHOD",
     "EVENT_FIELDS",
     "HISTORY_FIELDS",
@@ -67,6 +70,7 @@ __all__ = [
     "parse_initial",
     "point_history",
     "project_admissible",
+    "simulate_chain_point",
     "simulate_chunk",
     "simulate_line",
     "simulate_point",
@@ -74,6 +78,9 @@ __all__ = [
 ]
 
 POINT_KEYS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling", "xi_b")
+
+# The methods that run chains of N > 1 cells (docs/model.md §11), for now.
+CHAIN_METHODS = ("euler",)
 
 # How long a first compilation usually takes on a 2-core machine (measured; README).
 COMPILE_SECONDS = {"event": "60–240", "exponential": "20–60", "euler": "40–120"}
@@ -156,6 +163,67 @@ def simulate_point(
         return RUNS[settings.method](sys_, settings, tail, forcing, bound, **options)
 
     return run_point(make_run, sys_, tail, settings, x0, history_periods, limits, cancelled)
+
+
+def simulate_chain_point(
+    chain: ChainParams,
+    settings: SolverSettings | None = None,
+    *,
+    history_periods: int = 0,
+    initial_state: np.ndarray | None = None,
+    limits: PointLimits | None = None,
+    cancelled: Callable[[], bool] | None = None,
+) -> PointResult:
+    """Simulate a chain of N cells (docs/model.md §11) to its proven end and measure its last
+    cell.
+
+    N = 1 is :func:`simulate_point` of the unit cell (the same result, bit for bit, with any
+    method). For N > 1 only the methods of ``CHAIN_METHODS`` run (the paper's scheme, with 2N
+    contacts). ``transmittance_db`` is Γ_N of the last cell's outer mass;
+    ``transmittance_linear_db`` is Γ_N,lin of the chain's closed form; impacts are summed over
+    the cells (stop 1, stop 2); the history's channels are the last cell's, its ``state`` the
+    whole chain's. Other arguments as :func:`simulate_point` (``initial_state``: the chain's
+    ``[u; q]``, 2N(n + 1) numbers).
+
+    Raises
+    ------
+    ValueError
+        A method that does not run chains, invalid settings or state, a pinned cell
+        (g1 = g2 = 0) or an unstable Euler step for the chain.
+    """
+    settings = settings or SolverSettings()
+    if not isinstance(chain, ChainParams):
+        raise ValueError(f"chain must be a ChainParams, got {type(chain).__name__}")
+    if chain.n_cells == 1:
+        return simulate_point(chain.cells[0], settings, history_periods=history_periods,
+                              initial_state=initial_state, limits=limits,
+                              cancelled=cancelled)  # fmt: skip
+    if settings.method not in CHAIN_METHODS:
+        raise ValueError(
+            f"method {settings.method!r} does not run chains of n_cells > 1 yet; for chains "
+            f"method must be one of {', '.join(CHAIN_METHODS)}"
+        )
+    history_periods = int_in("history_periods", history_periods, 0, 100_000)
+    cs = assemble_chain(chain)
+    nx = 2 * cs.ndof
+    x0 = np.zeros(nx)
+    if initial_state is not None:
+        x0 = np.asarray(initial_state, dtype=float)
+        if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
+            raise ValueError(f"initial_state must be {nx} finite numbers, got shape {x0.shape}")
+    ChainEulerRun.check_point(cs, settings)
+    tail = chain_tail(cs)
+    gaps = max(max(p.g1, p.g2) for p in chain.cells)
+    scale = max(tail.scale, float(np.max(np.abs(x0))), gaps)
+
+    def make_run() -> ChainEulerRun:
+        bound = engine_config.DIVERGENCE_FACTOR * scale
+        return ChainEulerRun(cs, settings, tail, True, bound)
+
+    # the engine sees the chain through its last cell (γ_r, θ, base scale, κ) and the chain's
+    # tail (a duck-typed LinearTail: Γ_N,lin, the per-cell proof)
+    return run_point(make_run, engine_view(cs), tail, settings, x0,  # type: ignore[arg-type]
+                     history_periods, limits, cancelled)  # fmt: skip
 
 
 def simulate_chunk(
