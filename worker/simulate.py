@@ -214,7 +214,7 @@ def simulate_chain_point(
     ChainEulerRun.check_point(cs, settings)
     tail = chain_tail(cs)
     gaps = max(max(p.g1, p.g2) for p in chain.cells)
-    scale = max(tail.scale, float(np.max(np.abs(x0))), gaps)
+    scale = max(tail.scale, float(np.max(np.abs(x0))), gaps if math.isfinite(gaps) else 0.0)
 
     def make_run() -> ChainEulerRun:
         bound = engine_config.DIVERGENCE_FACTOR * scale
