@@ -90,8 +90,10 @@ def _variable(ds: xr.Dataset, variable: str) -> xr.DataArray:
     if variable == "pending" and variable not in ds.data_vars and "outcome" in ds.data_vars:
         # A complete dataset has nothing pending: asked of it (a page that saw the study
         # running a moment before it finished), every point is computed.
-        return xr.zeros_like(ds["outcome"], dtype=bool).rename("pending").assign_attrs(
-            units="1", long_name="point not computed yet (partial dataset)"
+        return (
+            xr.zeros_like(ds["outcome"], dtype=bool)
+            .rename("pending")
+            .assign_attrs(units="1", long_name="point not computed yet (partial dataset)")
         )
     if variable not in ds.data_vars:
         raise AnalysisError(
