@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import re
+import sys
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
@@ -123,6 +125,8 @@ def _outcome_text(r: Any) -> str:
 def _cmd_point(args: argparse.Namespace) -> int:
     from worker.simulate import simulate_point
 
+    if args.cells > 1 or args.gaps is not None or args.sigmas is not None:
+        return _cmd_chain_point(args)
     names = _flags(args)
     params = _flagged(names, lambda: _params(args, args.gamma_r))
     settings = _flagged(names, lambda: _settings(args))
@@ -134,6 +138,13 @@ def _cmd_point(args: argparse.Namespace) -> int:
         raise Failure(f"the point failed: {result.reason}")
     if args.json:
         return 0
+    _print_point(result)
+    return 0
+
+
+def _print_point(result: Any) -> None:
+    """The summary of one point (a unit cell's, or a chain's last cell's) as ``point`` prints
+    it."""
     se = result.transmittance_db_se
     print(f"transmittance Γ     {result.transmittance_db:.6f}"
           + (f" ± {se:.2g}" if se is not None else "") + " dB")  # fmt: skip
@@ -156,6 +167,145 @@ def _cmd_point(args: argparse.Namespace) -> int:
     print(f"impacts / period    stop 1: {i1:g}, stop 2: {i2:g}")
     print(f"steps               {result.steps} ({result.contact_steps} with contact)")
     print(f"wall time           {result.wall_s * 1e3:.2f} ms ({result.method})")
+
+
+# --------------------------------------------------------------------------- chains of N cells
+
+# A chain's per-cell fields (in ChainParams' messages) -> the flag a user types.
+CHAIN_FLAGS: dict[str, str] = {"n_cells": "--cells", "sigma": "--sigmas", "g1": "--gaps",
+                               "g2": "--gaps"}  # fmt: skip
+
+
+def number_list(text: str) -> list[float]:
+    """An argparse type: numbers separated by commas (``0.1,0.2,0.3``), one per cell."""
+    items = text.split(",")
+    try:
+        return [float(v) for v in items]
+    except ValueError:
+        bad = next(v for v in items if not _is_float(v))
+        raise argparse.ArgumentTypeError(
+            f"must be numbers separated by commas, one per cell (e.g. 0.1,0.2,0.3), got "
+            f"{text!r} ({bad.strip()!r} is not a number)"
+        ) from None
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _chain_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cells", type=positive_int, default=1,
+                   help="N, cells in series (docs/chains.md); N > 1 runs method euler")  # fmt: skip
+    p.add_argument("--gaps", type=number_list, default=None, metavar="G1,…,GN",
+                   help="per-cell clearances, both stops of cell j at g_j (default: --gap, "
+                   "--g1, --g2 in every cell)")  # fmt: skip
+    p.add_argument("--sigmas", type=number_list, default=None, metavar="S1,…,SN",
+                   help="per-cell beam stiffness σ_j (default: --sigma in every cell)")  # fmt: skip
+
+
+_INDEXED = re.compile(r"\b(g1|g2|sigma)\[(\d+)\]")
+
+
+def _chain_terms(message: str, args: argparse.Namespace, names: Mapping[str, str]) -> str:
+    """A ``ChainParams`` message in the command line's terms: ``g1[2] must be >= 0, got -1.0``
+    becomes ``--gaps value 3 (cell 3) must be >= 0, got -1.0 (--gaps 0.1,0.2,-1)``."""
+    typed = {"--gaps": args.gaps, "--sigmas": args.sigmas}
+    head = re.match(r"(g1|g2|sigma)\b", message)
+    if head is None:  # n_cells, or a cell field given once for every cell
+        return in_flag_terms(message, {**names, "n_cells": "--cells"})
+    flag = CHAIN_FLAGS[head.group(1)]
+    values = typed[flag]
+    if values is None:
+        return in_flag_terms(message, names)
+    message = _INDEXED.sub(lambda m: f"{flag} value {int(m.group(2)) + 1} (cell "
+                           f"{int(m.group(2)) + 1})", message)  # fmt: skip
+    message = flag + message[head.end() :] if message.startswith(head.group(1)) else message
+    message = message.replace("(n_cells = ", "(--cells ")
+    if "values:" in message:  # the wrong length: the message shows the list already
+        return message
+    return f"{message} ({flag} {','.join(f'{v:g}' for v in values)})"
+
+
+def _chain(args: argparse.Namespace, names: Mapping[str, str]) -> Any:
+    """The ``ChainParams`` of the command line, its errors in the command line's terms."""
+    from worker.model.chain import ChainParams
+
+    if args.gaps is not None and (args.g1 is not None or args.g2 is not None):
+        raise ValueError("--gaps sets both stops of every cell: give it without --g1 and --g2")
+    cell = _flagged(names, lambda: _params(args, args.gamma_r))
+    gaps = None if args.gaps is None else tuple(args.gaps)
+    sigmas = None if args.sigmas is None else tuple(args.sigmas)
+    try:
+        return ChainParams(cell, args.cells, sigma=sigmas, g1=gaps, g2=gaps)
+    except ValueError as exc:
+        raise ValueError(_chain_terms(str(exc), args, names)) from None
+
+
+def _stop_bands(chain: Any) -> list[tuple[float, float]] | None:
+    """The stop bands of the infinite lattice of the chain's cell, or ``None`` for a graded
+    chain (cells of different σ: no single lattice)."""
+    from worker.model.chain import stop_bands
+
+    if len({p.sigma for p in chain.cells}) > 1:
+        return None
+    return stop_bands(chain.cells[0])
+
+
+def _cmd_chain_point(args: argparse.Namespace) -> int:
+    """``point --cells N``: an impacting chain's last cell (Γ_N), Γ_j,lin at every cell and the
+    infinite lattice's stop bands."""
+    from worker.model.chain import chain_linear_transmittance_db
+    from worker.simulate import simulate_chain_point
+
+    names = _flags(args)
+    chain = _chain(args, names)
+    chosen = args.method is None and chain.n_cells > 1
+    if chosen:
+        args = argparse.Namespace(**{**vars(args), "method": "euler"})
+    settings = _flagged(names, lambda: _settings(args))
+    result = _flagged({**names, "n_cells": "--cells"},
+                      lambda: simulate_chain_point(chain, settings))  # fmt: skip
+    if chain.n_cells == 1:  # the unit cell: what point prints without --cells
+        if args.json:
+            print(json.dumps(result.as_dict()))
+        if result.failed:
+            raise Failure(f"the point failed: {result.reason}")
+        if not args.json:
+            _print_point(result)
+        return 0
+    try:
+        lin: list[float] | None = [float(v) for v in chain_linear_transmittance_db(chain)]
+    except ValueError:  # undamped resonance: no steady state (the point fails too)
+        lin = None
+    bands = _stop_bands(chain)
+    note = "euler (the method that runs chains of N > 1 cells)"
+    if args.json:
+        d = {**result.as_dict(), "cells": chain.n_cells, "cell_transmittance_linear_db": lin,
+             "stop_bands": None if bands is None else
+             [[lo, hi if math.isfinite(hi) else None] for lo, hi in bands]}  # fmt: skip
+        print(json.dumps(d))
+        if chosen:
+            print(f"method: {note}", file=sys.stderr)
+    if result.failed:
+        raise Failure(f"the point failed: {result.reason}")
+    if args.json:
+        return 0
+    if chosen:
+        print(f"method: {note}")
+    print(f"cells               {chain.n_cells} (Γ below is the last cell's, Γ_N)")
+    _print_point(result)
+    if lin is not None:
+        print(f"Γ_j,lin by cell     {', '.join(f'{v:.4f}' for v in lin)} dB (cell 1 first)")
+    if bands is None:
+        print("stop bands (γ_r)    n/a (cells of different σ: no single infinite lattice)")
+    else:
+        shown = ", ".join(f"[{lo:.4g}, {hi:.4g}]" if math.isfinite(hi) else f"[{lo:.4g}, ∞)"
+                          for lo, hi in bands)  # fmt: skip
+        print(f"stop bands (γ_r)    {shown or 'none'} (the infinite lattice, undamped)")
     return 0
 
 
@@ -225,6 +375,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     _cell_arguments(p)
     p.add_argument("--gamma-r", type=float, default=1.0, help="excitation frequency γ_r")
+    _chain_arguments(p)
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.set_defaults(func=_cmd_point)
 
