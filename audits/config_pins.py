@@ -38,35 +38,42 @@ CONFIG = ROOT / "worker" / "solvers" / "engine" / "config.py"
 ENV = "IMPACTCELL_CONFIG_OVERRIDE"
 
 
-def constants(path: Path = CONFIG) -> dict[str, tuple[float | int, list[str]]]:
-    """Every module-level constant with a number literal value, and its pins as pytest node ids
-    (``module::test`` lines under ``# Pinned by:``, modules of ``tests/worker/``). Constants
-    assigned one after the other share the comment block above the first."""
-    lines = path.read_text().splitlines()
-    out: dict[str, tuple[float | int, list[str]]] = {}
-    pins: list[str] = []
-    collecting = after_assign = False
-    for line in lines:
+def comment_blocks(path: Path = CONFIG) -> dict[str, tuple[str, list[str]]]:
+    """Every module-level constant's value text and the comment lines right above it;
+    constants assigned one after the other share the block above the first."""
+    out: dict[str, tuple[str, list[str]]] = {}
+    block: list[str] = []
+    after_assign = False
+    for line in path.read_text().splitlines():
         if line.startswith("#"):
             if after_assign or line.startswith("# ---"):
-                pins, after_assign = [], False
-            if line.startswith("# Pinned by:"):
-                collecting = True
-            elif collecting and (m := re.match(r"^#\s+(\w+)::(\w+)$", line)):
-                pins.append(f"tests/worker/{m.group(1)}.py::{m.group(2)}")
-            else:
-                collecting = False
-            continue
-        collecting = False
-        m = re.match(r"^([A-Z_]+) = (.+)$", line)
-        if m:
+                block, after_assign = [], False
+            block.append(line)
+        elif m := re.match(r"^([A-Z_]+) = (.+)$", line):
+            out[m.group(1)] = (m.group(2), block)
             after_assign = True
-            try:
-                value = ast.literal_eval(m.group(2).split("  #")[0].strip())
-            except (ValueError, SyntaxError):
-                continue  # derived from others: not moved on its own
-            if isinstance(value, (int, float)) and not isinstance(value, bool):
-                out[m.group(1)] = (value, list(pins))
+    return out
+
+
+def constants(path: Path = CONFIG) -> dict[str, tuple[float | int, list[str]]]:
+    """Every module-level constant with a number literal value, and its pins as pytest node ids
+    (``module::test`` lines under ``# Pinned by:``, modules of ``tests/worker/``)."""
+    out: dict[str, tuple[float | int, list[str]]] = {}
+    for name, (text, block) in comment_blocks(path).items():
+        try:
+            value = ast.literal_eval(text.split("  #")[0].strip())
+        except (ValueError, SyntaxError):
+            continue  # derived from others: not moved on its own
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            continue
+        pins: list[str] = []
+        if "# Pinned by:" in block:
+            for line in block[block.index("# Pinned by:") + 1 :]:
+                m = re.match(r"^#\s+(\w+)::(\w+)$", line)
+                if not m:
+                    break
+                pins.append(f"tests/worker/{m.group(1)}.py::{m.group(2)}")
+        out[name] = (value, pins)
     return out
 
 

@@ -141,11 +141,7 @@ def simulate_point(
     warm_up(settings.method)
     sys_ = assemble(params)
     nx = 2 * sys_.ndof
-    x0 = np.zeros(nx)
-    if initial_state is not None:
-        x0 = np.asarray(initial_state, dtype=float)
-        if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"initial_state must be {nx} finite numbers, got shape {x0.shape}")
+    x0 = _start(initial_state, nx)
     RUNS[settings.method].check_point(sys_, settings)
     tail = linear_tail(sys_, forcing)
     if tail.steady is None and settings.method == "event":
@@ -163,6 +159,16 @@ def simulate_point(
         return RUNS[settings.method](sys_, settings, tail, forcing, bound, **options)
 
     return run_point(make_run, sys_, tail, settings, x0, history_periods, limits, cancelled)
+
+
+def _start(initial_state: np.ndarray | None, nx: int) -> np.ndarray:
+    """The initial state as given (rest where None), checked: ``nx`` finite numbers."""
+    if initial_state is None:
+        return np.zeros(nx)
+    x0 = np.asarray(initial_state, dtype=float)
+    if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"initial_state must be {nx} finite numbers, got shape {x0.shape}")
+    return x0
 
 
 def simulate_chain_point(
@@ -206,11 +212,7 @@ def simulate_chain_point(
     history_periods = int_in("history_periods", history_periods, 0, 100_000)
     cs = assemble_chain(chain)
     nx = 2 * cs.ndof
-    x0 = np.zeros(nx)
-    if initial_state is not None:
-        x0 = np.asarray(initial_state, dtype=float)
-        if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"initial_state must be {nx} finite numbers, got shape {x0.shape}")
+    x0 = _start(initial_state, nx)
     ChainEulerRun.check_point(cs, settings)
     tail = chain_tail(cs)
     gaps = max(max(p.g1, p.g2) for p in chain.cells)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from audits.config_pins import CONFIG, constants, variants
+from audits.config_pins import CONFIG, comment_blocks, constants, variants
 from worker.model import CellParams
 from worker.simulate import SolverSettings, simulate_point
 from worker.solvers.engine import config as cfg
@@ -19,26 +19,8 @@ ROOT = Path(__file__).resolve().parents[2]
 ENGINE = CONFIG.parent
 
 
-def _blocks() -> dict[str, str]:
-    """Each constant's comment block: the comments right above it, shared by constants assigned
-    one after the other."""
-    out: dict[str, str] = {}
-    comment: list[str] = []
-    after_assign = False
-    for line in CONFIG.read_text().splitlines():
-        if line.startswith("#"):
-            if after_assign or line.startswith("# ---"):
-                comment = []
-            after_assign = False
-            comment.append(line)
-        elif m := re.match(r"^([A-Z_]+) = ", line):
-            out[m.group(1)] = "\n".join(comment)
-            after_assign = True
-    return out
-
-
 def test_every_constant_says_what_it_trades_and_names_existing_pins() -> None:
-    blocks = _blocks()
+    blocks = {name: "\n".join(block) for name, (_, block) in comment_blocks().items()}
     numbers = constants()
     assert len(numbers) >= 30  # the parser sees them all (a broken parser would pass below)
     for name, (_, pins) in numbers.items():

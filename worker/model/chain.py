@@ -20,6 +20,7 @@ import numpy as np
 
 from worker.checks import check_field, integer, shown
 from worker.model.params import CellParams
+from worker.model.references import unit_response
 from worker.model.system import System, assemble
 
 __all__ = [
@@ -244,16 +245,8 @@ def chain_steady_state(cs: ChainSystem) -> ChainSteadyState | None:
     ``U = H⁻¹ e_{s_1}(f_cos − i f_sin)`` with ``H = K − γ_r² M + iγ_r C``, the same arithmetic
     as the unit cell's ``steady_state`` (so N = 1 reproduces it bit for bit).
     """
-    g = cs.params.cell.gamma_r
-    H = cs.K - g * g * cs.M + 1j * g * cs.C
-    e_s = np.zeros(cs.ndof)
-    e_s[cs.s_index[0]] = 1.0
-    try:
-        h = np.linalg.solve(H, e_s)
-    except np.linalg.LinAlgError:
-        return None
-    # the unit cell's test of a singular H (references.steady_state)
-    if not np.all(np.isfinite(h)) or np.max(np.abs(h)) * np.max(np.abs(H)) > 1e13:
+    h = unit_response(cs.K, cs.M, cs.C, cs.params.cell.gamma_r, int(cs.s_index[0]))
+    if h is None:
         return None
     f = complex(cs.f_cos, -cs.f_sin)
     return ChainSteadyState(params=cs.params, U=h * f, s_index=cs.s_index, W=cs.W)

@@ -62,20 +62,29 @@ class SteadyState:
         return np.concatenate([self.U.real, (1j * g * self.U).real])
 
 
+def unit_response(K: np.ndarray, M: np.ndarray, C: np.ndarray, gamma: float,
+                  at: int) -> np.ndarray | None:  # fmt: skip
+    """``H⁻¹ e_at`` with ``H = K − γ²M + iγC``: the complex response to a unit harmonic force
+    on coordinate ``at``; None where H is singular (an undamped resonance)."""
+    H = K - gamma * gamma * M + 1j * gamma * C
+    e = np.zeros(M.shape[0])
+    e[at] = 1.0
+    try:
+        h = np.linalg.solve(H, e)
+    except np.linalg.LinAlgError:
+        return None
+    # |H⁻¹| >= |H⁻¹ e|: a response 1e13 times the size of what H maps it to is a singular H
+    if not np.all(np.isfinite(h)) or np.max(np.abs(h)) * np.max(np.abs(H)) > 1e13:
+        return None
+    return h
+
+
 def steady_state(sys_: System, forcing: bool = True) -> SteadyState | None:
     """The closed-form impact-free steady state, or ``None`` at an undamped resonance (the
     forcing frequency on a natural frequency of an undamped system: no steady state)."""
     p = sys_.params
-    g = p.gamma_r
-    H = sys_.K - g * g * sys_.M + 1j * g * sys_.C
-    e_s = np.zeros(sys_.ndof)
-    e_s[-1] = 1.0
-    try:
-        h = np.linalg.solve(H, e_s)
-    except np.linalg.LinAlgError:
-        return None
-    # |H⁻¹| >= |H⁻¹ e_s|: a response 1e13 times the size of what H maps it to is a singular H
-    if not np.all(np.isfinite(h)) or np.max(np.abs(h)) * np.max(np.abs(H)) > 1e13:
+    h = unit_response(sys_.K, sys_.M, sys_.C, p.gamma_r, sys_.ndof - 1)
+    if h is None:
         return None
     # F(τ) = e_s (f_sin sin γτ + f_cos cos γτ) = Re(e_s (f_cos - i f_sin) e^{iγτ})
     f = complex(sys_.f_cos, -sys_.f_sin) if forcing else 0j
