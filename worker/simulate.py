@@ -26,7 +26,8 @@ from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_
 from worker.model import CellParams, assemble, steady_state
 from worker.model.chain import ChainParams, assemble_chain
 from worker.numba_cache import exclusive, mark_done, marked_done, on_disk
-from worker.solvers.chain_euler import ChainEulerRun, chain_tail, engine_view
+from worker.solvers.chain_euler import ChainEulerRun, ChainSteppingRun, chain_tail, engine_view
+from worker.solvers.chain_exponential import ChainExponentialRun
 from worker.solvers.dispatch import KERNELS, RUNS
 from worker.solvers.engine import compile_helpers, linear_reference_db, run_point
 from worker.solvers.engine import config as engine_config
@@ -80,7 +81,11 @@ __all__ = [
 POINT_KEYS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling", "xi_b")
 
 # The methods that run chains of N > 1 cells (docs/model.md §11), for now.
-CHAIN_METHODS = ("euler",)
+CHAIN_METHODS = ("euler", "exponential")
+CHAIN_RUNS: dict[str, type[ChainSteppingRun]] = {
+    "euler": ChainEulerRun,
+    "exponential": ChainExponentialRun,
+}
 
 # How long a first compilation usually takes on a 2-core machine (measured; README).
 COMPILE_SECONDS = {"event": "60–240", "exponential": "20–60", "euler": "40–120"}
@@ -184,8 +189,9 @@ def simulate_chain_point(
     cell.
 
     N = 1 is :func:`simulate_point` of the unit cell (the same result, bit for bit, with any
-    method). For N > 1 only the methods of ``CHAIN_METHODS`` run (the paper's scheme, with 2N
-    contacts). ``transmittance_db`` is Γ_N of the last cell's outer mass;
+    method). For N > 1 only the methods of ``CHAIN_METHODS`` run: ``euler`` (the paper's scheme,
+    with 2N contacts) and ``exponential`` (the chain's exact propagator with Moreau impulses).
+    ``transmittance_db`` is Γ_N of the last cell's outer mass;
     ``transmittance_linear_db`` is Γ_N,lin of the chain's closed form; impacts are summed over
     the cells (stop 1, stop 2); the history's channels are the last cell's, its ``state`` the
     whole chain's. Other arguments as :func:`simulate_point` (``initial_state``: the chain's
@@ -195,7 +201,8 @@ def simulate_chain_point(
     ------
     ValueError
         A method that does not run chains, invalid settings or state, a pinned cell
-        (g1 = g2 = 0) or an unstable Euler step for the chain.
+        (g1 = g2 = 0), an unstable Euler step for the chain, or an exponential fine step that
+        cannot resolve a cell's tip modes.
     """
     settings = settings or SolverSettings()
     if not isinstance(chain, ChainParams):
@@ -213,14 +220,15 @@ def simulate_chain_point(
     cs = assemble_chain(chain)
     nx = 2 * cs.ndof
     x0 = _start(initial_state, nx)
-    ChainEulerRun.check_point(cs, settings)
+    run_class = CHAIN_RUNS[settings.method]
+    run_class.check_point(cs, settings)
     tail = chain_tail(cs)
     gaps = max(max(p.g1, p.g2) for p in chain.cells)
     scale = max(tail.scale, float(np.max(np.abs(x0))), gaps if math.isfinite(gaps) else 0.0)
 
-    def make_run() -> ChainEulerRun:
+    def make_run() -> ChainSteppingRun:
         bound = engine_config.DIVERGENCE_FACTOR * scale
-        return ChainEulerRun(cs, settings, tail, True, bound)
+        return run_class(cs, settings, tail, True, bound)
 
     # the engine sees the chain through its last cell (γ_r, θ, base scale, κ) and the chain's
     # tail (a duck-typed LinearTail: Γ_N,lin, the per-cell proof)

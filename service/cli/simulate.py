@@ -199,7 +199,8 @@ def _is_float(text: str) -> bool:
 
 def _chain_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cells", type=positive_int, default=1,
-                   help="N, cells in series (docs/chains.md); N > 1 runs method euler")  # fmt: skip
+                   help="N, cells in series (docs/chains.md); N > 1 runs method euler unless "
+                   "--method exponential")  # fmt: skip
     p.add_argument("--gaps", type=number_list, default=None, metavar="G1,…,GN",
                    help="per-cell clearances, both stops of cell j at g_j (default: --gap, "
                    "--g1, --g2 in every cell)")  # fmt: skip

@@ -154,11 +154,10 @@ def test_history_is_the_last_cells_channels_and_the_chains_state():
     np.testing.assert_array_equal(h["s_dot"], h["state"][:, 11])
 
 
-@pytest.mark.parametrize("method", ["event", "exponential"])
-def test_other_methods_refuse_chains(method):
-    with pytest.raises(ValueError, match="method 'event'|method 'exponential'") as err:
-        simulate_chain_point(ChainParams(cell=CELL, n_cells=2), SolverSettings(method=method))
-    assert "for chains method must be one of euler" in str(err.value)
+def test_other_methods_refuse_chains():
+    with pytest.raises(ValueError, match="method 'event'") as err:
+        simulate_chain_point(ChainParams(cell=CELL, n_cells=2), SolverSettings(method="event"))
+    assert "for chains method must be one of euler, exponential" in str(err.value)
 
 
 def test_bad_chain_points_are_refused():

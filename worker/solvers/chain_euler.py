@@ -36,7 +36,16 @@ from worker.solvers.linear import GATE_RTOL, _free_modes, tail_proof
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
 from worker.solvers.stepping import SteppingRun, contact_step, extrema
 
-__all__ = ["ChainEulerRun", "ChainTail", "chain_euler_kernel", "chain_tail", "engine_view"]
+__all__ = [
+    "ChainEulerRun",
+    "ChainSteppingRun",
+    "ChainTail",
+    "cell_blocks",
+    "chain_euler_kernel",
+    "chain_tail",
+    "engine_view",
+    "refuse_pinned",
+]
 
 # The tail proof keeps one (modes × state) complex row block per cell: N·2nd² entries for
 # nd unknowns. Beyond this many (~64 MB) a chain gets no proof and its point runs on.
@@ -304,31 +313,41 @@ def engine_view(cs: ChainSystem) -> System:
     return cs.cells[-1]
 
 
-class ChainEulerRun(SteppingRun):
-    """A chain integrated by the paper's scheme (``method: euler``)."""
+def refuse_pinned(cs: ChainSystem) -> None:
+    """Refuse a chain with a pinned cell (g1 = g2 = 0): the engine's pinned-tip analysis is
+    the unit cell's."""
+    pinned = [j + 1 for j, p in enumerate(cs.params.cells) if p.g1 == 0.0 and p.g2 == 0.0]
+    if pinned:
+        raise ValueError(
+            f"cells {pinned} have g1 = g2 = 0 (a pinned tip): not supported for chains yet "
+            "(the engine's pinned-tip analysis is the unit cell's); use gaps > 0"
+        )
 
-    name = "euler"
-    kernel = staticmethod(chain_euler_kernel)
 
-    @classmethod
-    def check_point(cls, cs: ChainSystem, settings: SolverSettings) -> int:  # type: ignore[override]
-        """The steps per period this chain runs at; refused beyond the stability limit of the
-        whole chain or beyond ``MAX_STEPS_PER_PERIOD``, or with a pinned cell."""
-        pinned = [j + 1 for j, p in enumerate(cs.params.cells) if p.g1 == 0.0 and p.g2 == 0.0]
-        if pinned:
-            raise ValueError(
-                f"cells {pinned} have g1 = g2 = 0 (a pinned tip): not supported for chains yet "
-                "(the engine's pinned-tip analysis is the unit cell's); use gaps > 0"
-            )
-        view = _SteppingView(cs.params.cell, cs.Minv, cs.K, cs.C)
-        spp = settings.steps_per_period or default_steps(view)  # type: ignore[arg-type]
-        if spp > MAX_STEPS_PER_PERIOD:
-            raise ValueError(
-                f"the euler scheme needs steps_per_period >= {spp} for this chain "
-                f"(Δτ·ω̃_max <= 1), more than the limit {MAX_STEPS_PER_PERIOD}"
-            )
-        check_stable(view, 2.0 * math.pi / cs.params.cell.gamma_r / spp)  # type: ignore[arg-type]
-        return spp
+def cell_blocks(cs: ChainSystem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each cell's rows on its own block of b = n + 1 coordinates: ``W`` (N, b) its tip,
+    ``MinvX`` (N, b) the velocity change of a unit impulse at its stops; and the gaps g1, g2."""
+    N = cs.params.n_cells
+    b = cs.ndof // N
+    c = np.ascontiguousarray
+    blocks = [slice(j * b, (j + 1) * b) for j in range(N)]
+    W = c(np.array([cs.W[j, blk] for j, blk in enumerate(blocks)]))
+    MinvX = c(np.array([(cs.Minv @ cs.X[j])[blk] for j, blk in enumerate(blocks)]))
+    g1 = np.array([q.g1 for q in cs.params.cells], dtype=float)
+    g2 = np.array([q.g2 for q in cs.params.cells], dtype=float)
+    return W, MinvX, g1, g2
+
+
+class ChainSteppingRun(SteppingRun):
+    """What a chain's time-stepping runs share: no per-period tail check in the kernel (the
+    chain's proof is per cell and runs in the engine), and one contact episode per cell
+    (``contact``, kept between batches, saved and restored with the state). Subclasses set
+    ``contact``, ``_W`` (N, b), ``_g1``, ``_g2`` in ``__init__``."""
+
+    contact: np.ndarray
+    _W: np.ndarray
+    _g1: np.ndarray
+    _g2: np.ndarray
 
     def __init__(self, cs: ChainSystem, settings: SolverSettings, tail: ChainTail,
                  forcing: bool, div_limit: float) -> None:  # fmt: skip
@@ -338,26 +357,6 @@ class ChainEulerRun(SteppingRun):
         self.lin_L = np.zeros((0, self.nx), dtype=complex)
         self.lin_xp = np.zeros(self.nx)
         self.lin_amp, self.lin_gate = 0.0, -1.0
-        p = cs.params
-        N = p.n_cells
-        b = cs.ndof // N
-        self.spp = self.check_point(cs, settings)
-        c = np.ascontiguousarray
-        blocks = [slice(j * b, (j + 1) * b) for j in range(N)]
-        W = c(np.array([cs.W[j, blk] for j, blk in enumerate(blocks)]))
-        MinvX = c(np.array([(cs.Minv @ cs.X[j])[blk] for j, blk in enumerate(blocks)]))
-        G = np.array([s.G for s in cs.cells])
-        g1 = np.array([q.g1 for q in p.cells], dtype=float)
-        g2 = np.array([q.g2 for q in p.cells], dtype=float)
-        self.contact = np.zeros(N)
-        self.arrays = (
-            self.spp, p.cell.gamma_r, self.f_scale, c(cs.Minv @ cs.C), c(cs.Minv @ cs.K),
-            c(cs.Minv[:, cs.s_index[0]]), MinvX, cs.f_sin, cs.f_cos, W, cs.cells[-1].d, G, g1,
-            g2, self.contact, np.zeros(N), np.zeros(N), settings.lcp == "lemke",
-            np.zeros((2 * N, 2 * N)), np.zeros(2 * N), *lemke_workspace(2 * N),
-        )  # fmt: skip
-        self._W, self._g1, self._g2 = W, g1, g2
-        self.xn = np.zeros(self.nx)
 
     def reset(self, x0: np.ndarray) -> None:
         """Start from the chain state ``x0`` at forcing phase 0; a cell already on a stop has
@@ -377,3 +376,44 @@ class ChainEulerRun(SteppingRun):
 
     def _restore(self, extra: object) -> None:
         self.contact[:] = extra  # type: ignore[index]
+
+
+class ChainEulerRun(ChainSteppingRun):
+    """A chain integrated by the paper's scheme (``method: euler``)."""
+
+    name = "euler"
+    kernel = staticmethod(chain_euler_kernel)
+
+    @classmethod
+    def check_point(cls, cs: ChainSystem, settings: SolverSettings) -> int:  # type: ignore[override]
+        """The steps per period this chain runs at; refused beyond the stability limit of the
+        whole chain or beyond ``MAX_STEPS_PER_PERIOD``, or with a pinned cell."""
+        refuse_pinned(cs)
+        view = _SteppingView(cs.params.cell, cs.Minv, cs.K, cs.C)
+        spp = settings.steps_per_period or default_steps(view)  # type: ignore[arg-type]
+        if spp > MAX_STEPS_PER_PERIOD:
+            raise ValueError(
+                f"the euler scheme needs steps_per_period >= {spp} for this chain "
+                f"(Δτ·ω̃_max <= 1), more than the limit {MAX_STEPS_PER_PERIOD}"
+            )
+        check_stable(view, 2.0 * math.pi / cs.params.cell.gamma_r / spp)  # type: ignore[arg-type]
+        return spp
+
+    def __init__(self, cs: ChainSystem, settings: SolverSettings, tail: ChainTail,
+                 forcing: bool, div_limit: float) -> None:  # fmt: skip
+        super().__init__(cs, settings, tail, forcing, div_limit)
+        p = cs.params
+        N = p.n_cells
+        self.spp = self.check_point(cs, settings)
+        c = np.ascontiguousarray
+        W, MinvX, g1, g2 = cell_blocks(cs)
+        G = np.array([s.G for s in cs.cells])
+        self.contact = np.zeros(N)
+        self.arrays = (
+            self.spp, p.cell.gamma_r, self.f_scale, c(cs.Minv @ cs.C), c(cs.Minv @ cs.K),
+            c(cs.Minv[:, cs.s_index[0]]), MinvX, cs.f_sin, cs.f_cos, W, cs.cells[-1].d, G, g1,
+            g2, self.contact, np.zeros(N), np.zeros(N), settings.lcp == "lemke",
+            np.zeros((2 * N, 2 * N)), np.zeros(2 * N), *lemke_workspace(2 * N),
+        )  # fmt: skip
+        self._W, self._g1, self._g2 = W, g1, g2
+        self.xn = np.zeros(self.nx)
