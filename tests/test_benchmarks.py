@@ -653,3 +653,19 @@ def test_kernel_cost_runs_and_counts_the_impacts(tmp_path: Path) -> None:
     m = re.search(r"([0-9,]+) periods, ([0-9,]+) impacts", md)
     assert m and int(m.group(1).replace(",", "")) > 0 and int(m.group(2).replace(",", "")) > 0
     assert "| points | per impact-free period | per impact |" in md and "| all |" in md
+
+
+def test_chain_cost_fits_the_growth_exponent() -> None:
+    cc = _load("chain_cost")
+    assert math.isclose(cc.slope([2, 5, 10, 20], [3.0 * n**2 for n in (2, 5, 10, 20)]), 2.0)
+
+
+@pytest.mark.slow
+def test_chain_cost_quick_runs_both_methods(tmp_path: Path) -> None:
+    cc = _load("chain_cost")
+    assert cc.main(["--quick", "--out", str(tmp_path)]) == 0
+    md = (tmp_path / "chain_cost.md").read_text()
+    for n in (1, 2, 5):
+        for m in ("euler", "exponential"):
+            assert f"| {n} | {m} |" in md
+    assert "growth exponent, `exponential`" in md and "| 1.9 |" in md
