@@ -497,6 +497,9 @@ def _warm_one(method: str, compiling: bool, quiet: bool) -> None:
     with talk:
         # a point that impacts and a point that is linear at once: every kernel path compiles
         simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
+        if method in CHAIN_METHODS:  # the chain's kernel (two cells), its first tip struck
+            struck = np.r_[np.zeros(4), 2.0, np.zeros(3)]
+            simulate_chain_point(ChainParams(p, 2), s, initial_state=struck)
         compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
         RUNS[method].compile_helpers()  # the method's own (event: the exact monodromy matrix)
     mark_done(_warm_mark(method))
