@@ -499,7 +499,8 @@ class Client:
 
         ``query``: a value per parameter (``theta=0.3``, ``gap=0.1``), or a range
         (``gamma_r_min=1, gamma_r_max=2``), and ``modes``, ``coupling``, ``method``,
-        ``outcome``, ``version`` (``"all"``: every solver version), ``study``.
+        ``outcome``, ``cells`` (chains of N cells; 1: the unit cell), ``version`` (``"all"``:
+        every solver version), ``study``.
         """
         params = {**_params(query), "format": "netcdf", "limit": str(page)}
         parts: list[xr.Dataset] = []

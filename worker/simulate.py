@@ -24,8 +24,9 @@ import numpy as np
 from worker.compile_progress import compile_progress
 from worker.initial import INITIAL_KINDS, initial_state, parse_initial, project_admissible
 from worker.model import CellParams, assemble, steady_state
-from worker.model.chain import ChainParams, assemble_chain
+from worker.model.chain import ChainParams, assemble_chain, chain_linear_transmittance_db
 from worker.numba_cache import exclusive, mark_done, marked_done, on_disk
+from worker.observables import transmittance_db
 from worker.solvers.chain_euler import ChainEulerRun, ChainSteppingRun, chain_tail, engine_view
 from worker.solvers.chain_exponential import ChainExponentialRun
 from worker.solvers.dispatch import KERNELS, RUNS
@@ -49,6 +50,7 @@ from worker.solvers.settings import (
 
 __all__ = [
     "CHAIN_METHODS",
+    "CHAIN_POINT_KEYS",
     "DEFAULT_METHOD",
     "EVENT_FIELDS",
     "HISTORY_FIELDS",
@@ -79,6 +81,8 @@ __all__ = [
 ]
 
 POINT_KEYS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling", "xi_b")
+#: A chain point's keys besides ``POINT_KEYS`` (``chain_of``): N and the graded lists.
+CHAIN_POINT_KEYS = ("cells", "cell_sigma", "cell_g1", "cell_g2")
 
 # The methods that run chains of N > 1 cells (docs/model.md §11), for now.
 CHAIN_METHODS = ("euler", "exponential")
@@ -232,8 +236,26 @@ def simulate_chain_point(
 
     # the engine sees the chain through its last cell (γ_r, θ, base scale, κ) and the chain's
     # tail (a duck-typed LinearTail: Γ_N,lin, the per-cell proof)
-    return run_point(make_run, engine_view(cs), tail, settings, x0,  # type: ignore[arg-type]
-                     history_periods, limits, cancelled)  # fmt: skip
+    res = run_point(make_run, engine_view(cs), tail, settings, x0,  # type: ignore[arg-type]
+                    history_periods, limits, cancelled)  # fmt: skip
+    return _with_cells(res, chain, make_run)
+
+
+def _with_cells(
+    res: PointResult, chain: ChainParams, make_run: Callable[[], ChainSteppingRun]
+) -> PointResult:
+    """``res`` with its chain fields: N, Γ_j,lin and the proven Γ_j of every cell (the closed
+    form at a linear point, the orbit's p periods run again at a periodic one)."""
+    res.cells = chain.n_cells
+    lin = cell_linear_db(chain)
+    res.cell_transmittance_linear_db = lin
+    if res.outcome == "linear":
+        res.cell_transmittance_db = lin  # type: ignore[assignment]
+    elif res.outcome == "periodic" and res.final_state is not None:
+        half = make_run().cell_ranges(res.final_state, res.response_period)
+        scale = chain.cell.base_scale
+        res.cell_transmittance_db = [transmittance_db(float(a), scale) for a in half]
+    return res
 
 
 def simulate_chunk(
@@ -309,6 +331,8 @@ def _run_point(
     that cannot be run is a failed record (final state ``None``); a cancel is raised."""
     params: CellParams | None = None
     started = "initial"
+    if "cells" in pt:
+        return _run_chain_point(pt, settings, budget, cancelled, line), None
     try:
         params = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
         parse_initial(pt.get("initial"))  # a bad entry fails its point, used or not
@@ -329,6 +353,49 @@ def _run_point(
     if line:
         record["started_from"] = started
     return record, final
+
+
+def chain_of(pt: Mapping[str, Any]) -> ChainParams:
+    """The chain of a point dict with ``cells`` (``CHAIN_POINT_KEYS``): its cell from the
+    ``CellParams`` keys, per-cell lists from ``cell_sigma``, ``cell_g1``, ``cell_g2``."""
+    cell = CellParams(**{k: pt[k] for k in POINT_KEYS if k in pt})
+    return ChainParams(cell, pt["cells"], sigma=pt.get("cell_sigma"), g1=pt.get("cell_g1"),
+                       g2=pt.get("cell_g2"))  # fmt: skip
+
+
+def _run_chain_point(
+    pt: Mapping[str, Any],
+    settings: SolverSettings,
+    budget: PointLimits,
+    cancelled: Callable[[], bool] | None,
+    line: bool,
+) -> dict[str, Any]:
+    """A chain point's record (a chain starts from rest; a sweep line's hand-over is the unit
+    cell's); a point that cannot be run is a failed record with the chain's fields."""
+    chain: ChainParams | None = None
+    try:
+        chain = chain_of(pt)
+        if parse_initial(pt.get("initial"))[0] != "rest":
+            raise ValueError(f"a chain of cells starts from rest, got initial {pt['initial']!r}")
+        record = simulate_chain_point(chain, settings, limits=budget,
+                                      cancelled=cancelled).as_dict()  # fmt: skip
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        lin = cell_linear_db(chain) if chain is not None else None
+        record = failed_result(settings, str(exc), lin[-1] if lin else None)
+        record.update(cells=pt.get("cells"), cell_transmittance_db=None,
+                      cell_transmittance_linear_db=lin)  # fmt: skip
+    if line:
+        record["started_from"] = "initial"
+    return record
+
+
+def cell_linear_db(chain: ChainParams) -> list[float | None]:
+    """Γ_j,lin of every cell of ``chain`` (cell 1 first), all ``None`` where no closed form
+    exists (an undamped resonance)."""
+    try:
+        return [float(v) for v in chain_linear_transmittance_db(chain)]
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return [None] * chain.n_cells
 
 
 def linear_reference(params: CellParams) -> float | None:
@@ -438,6 +505,9 @@ def _warm_one(method: str, compiling: bool, quiet: bool) -> None:
     with talk:
         # a point that impacts and a point that is linear at once: every kernel path compiles
         simulate_point(p, s, initial_state=np.r_[0.0, 0.0, 2.0, 0.0])
+        if method in CHAIN_METHODS:  # the chain's kernel (two cells), its first tip struck
+            struck = np.r_[np.zeros(4), 2.0, np.zeros(3)]
+            simulate_chain_point(ChainParams(p, 2), s, initial_state=struck)
         compile_helpers()  # what only longer points reach (extrapolated orbits), if not cached
         RUNS[method].compile_helpers()  # the method's own (event: the exact monodromy matrix)
     mark_done(_warm_mark(method))

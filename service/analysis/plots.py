@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import json
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
@@ -369,8 +370,12 @@ def transmittance_figure(
             ref = lin if hue is None else lin.isel({hue: k})
             ax.plot(xv[on], ref.values[on], ls="--", lw=0.8, color=color,
                     gid="linear-reference")  # fmt: skip
+    chain = "cell" in ds.dims
     if lin is not None and np.isfinite(lin.values).any():
-        ax.plot([], [], ls="--", lw=0.8, color="0.3", label="Γ_lin: the cell without stops")
+        what = "the chain" if chain else "the cell"
+        ax.plot([], [], ls="--", lw=0.8, color="0.3", label=f"Γ_lin: {what} without stops")
+    if x == "gamma_r" and "lattice_stop_bands" in ds.attrs and xv.size:
+        _shade_stop_bands(ax, json.loads(str(ds.attrs["lattice_stop_bands"])), xv)
     ax.axhline(0.0, color="k", lw=0.8, ls=":", label="0 dB")
     _mark_outcomes(ax, xv, da.values.astype(np.float64), names)
     _label_axis(ax.xaxis, x, da[x])
@@ -380,6 +385,17 @@ def transmittance_figure(
     ax.grid(True, lw=0.4, alpha=0.5)
     _legend(ax, loc="best", title=None if hue is None else axis_symbol(hue))
     return fig
+
+
+def _shade_stop_bands(ax: Any, bands: Sequence[Sequence[float | None]], xv: np.ndarray) -> None:
+    """Shade the infinite lattice's stop bands (γ_r; ``None``: open above) over ``xv``'s span."""
+    lo_x, hi_x = float(np.min(xv)), float(np.max(xv))
+    label = "stop band of the infinite lattice"
+    for lo, hi in bands:
+        a, b = max(float(lo or 0.0), lo_x), min(hi_x if hi is None else float(hi), hi_x)
+        if a < b:
+            ax.axvspan(a, b, color="0.6", alpha=0.2, lw=0, gid="stop-band", label=label)
+            label = "_"  # one legend entry
 
 
 def transmittance_png(

@@ -288,7 +288,7 @@ class View(NamedTuple):
 
 def _varying(ds: xr.Dataset, variable: str) -> list[str]:
     dims = ds[variable].dims if variable in ds.data_vars else tuple(ds.dims)
-    return [str(d) for d in dims if d != "stop" and ds.sizes[d] > 1]
+    return [str(d) for d in dims if d not in ("stop", "cell") and ds.sizes[d] > 1]
 
 
 def default_y(

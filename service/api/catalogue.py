@@ -162,6 +162,7 @@ class PointRow(_Base):
     xi_b: Mapped[float | None] = mapped_column(Float)
     g1: Mapped[float] = mapped_column(Float)
     g2: Mapped[float] = mapped_column(Float)
+    cells: Mapped[int | None] = mapped_column(Integer)  # a chain's N; NULL: the unit cell
     outcome: Mapped[str] = mapped_column(String(16))
     transmittance_db: Mapped[float | None] = mapped_column(Float)
     record: Mapped[str] = mapped_column(Text)  # JSON: the worker's whole record

@@ -59,7 +59,8 @@ class PointQuery:
     """What ``GET /points`` (and ``impactcell points``) asks for.
 
     ``values``: parameter → value (matched within ``MATCH_RTOL``); ``ranges``: parameter →
-    (min or None, max or None), both ends included. ``version``: a solver version, or ``"all"``.
+    (min or None, max or None), both ends included. ``cells``: chains of N cells only (1: the
+    unit cell); None: every point. ``version``: a solver version, or ``"all"``.
     ``after``: the last key of the previous page (pages are in key order).
     """
 
@@ -69,6 +70,7 @@ class PointQuery:
     coupling: str | None = None
     method: str | None = None
     outcome: str | None = None
+    cells: int | None = None
     version: str = SOLVER_VERSION
     study: str | None = None
     after: str | None = None
@@ -150,6 +152,7 @@ class SqlPointStore:
                 "solver": skey,
                 "start": _start(point, after),
                 **{c: cell[c] for c in PARAM_COLUMNS},
+                "cells": cell.get("cells"),
                 "outcome": str(record.get("outcome") or ""),
                 "transmittance_db": _finite(record.get("transmittance_db")),
                 "record": _record_json(record),
@@ -254,6 +257,8 @@ class SqlPointStore:
         ):
             if v is not None:
                 conds.append(col == v)
+        if q.cells is not None:
+            conds.append(PointRow.cells.is_(None) if q.cells == 1 else PointRow.cells == q.cells)
         if q.version != "all":
             conds.append(PointRow.version == q.version)
         if q.study is not None:
@@ -343,6 +348,7 @@ def _record_json(record: Mapping[str, Any]) -> str:
 
 def _row_dict(m: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {c: m[c] for c in (*_ID_COLUMNS, *PARAM_COLUMNS)}
+    out["cells"] = m["cells"] or 1  # a chain's N; 1: the unit cell
     for k, v in with_transient_flag(json.loads(m["record"])).items():
         if k not in out:
             out[k] = v
@@ -382,7 +388,7 @@ def points_csv(rows: Sequence[Mapping[str, Any]]) -> str:
     import csv
     import io
 
-    head = [*_ID_COLUMNS, *PARAM_COLUMNS]
+    head = [*_ID_COLUMNS, *PARAM_COLUMNS, "cells"]
     fields = [f for f in CHUNK_FIELDS if f != "impacts_per_period"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -424,6 +430,9 @@ def points_dataset(rows: Sequence[Mapping[str, Any]]) -> Any:
             info = AXES.get(c)
             attrs = {"units": info.units, "long_name": info.long_name} if info else {}
             coords[c] = ("point", arr, attrs)
+    info = AXES["cells"]
+    coords["cells"] = ("point", np.array([int(r.get("cells") or 1) for r in rows], dtype=np.int64),
+                       {"units": info.units, "long_name": info.long_name})  # fmt: skip
     coords["stop"] = stop_coordinate()
     return xr.Dataset(
         data_vars,

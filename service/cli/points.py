@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from service.cli.common import finite_float
+from service.cli.common import finite_float, positive_int
 from service.cli.db import _database_flags, _run
 
 __all__ = ["add_commands"]
@@ -64,7 +64,8 @@ def _query(args: argparse.Namespace) -> Any:
             ranges[name] = (lo, hi)
     return PointQuery(
         values=values, ranges=ranges, modes=args.modes, coupling=args.coupling,
-        method=args.method, outcome=args.outcome, version=args.version or SOLVER_VERSION,
+        method=args.method, outcome=args.outcome, cells=args.cells,
+        version=args.version or SOLVER_VERSION,
         study=args.study,
         limit=10_000,
     )  # fmt: skip
@@ -149,6 +150,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--outcome", default=None,
                    help="linear, periodic, irregular, unsettled or failed "
                    "(default: any)")  # fmt: skip
+    p.add_argument("--cells", type=positive_int, default=None, metavar="N",
+                   help="chains of N cells only, 1 the unit cell (default: any)")  # fmt: skip
     p.add_argument("--version", default=None,
                    help="solver version, or 'all' (default: this impactcell's)")  # fmt: skip
     p.add_argument("--study", default=None,

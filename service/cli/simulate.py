@@ -256,6 +256,10 @@ def _stop_bands(chain: Any) -> list[tuple[float, float]] | None:
     return stop_bands(chain.cells[0])
 
 
+#: What ``point`` and ``spectrum`` say when they pick the method of a chain of N > 1 cells.
+_CHAIN_METHOD_NOTE = "euler (the method that runs chains of N > 1 cells)"
+
+
 def _cmd_chain_point(args: argparse.Namespace) -> int:
     """``point --cells N``: an impacting chain's last cell (Γ_N), Γ_j,lin at every cell and the
     infinite lattice's stop bands."""
@@ -283,22 +287,24 @@ def _cmd_chain_point(args: argparse.Namespace) -> int:
     except ValueError:  # undamped resonance: no steady state (the point fails too)
         lin = None
     bands = _stop_bands(chain)
-    note = "euler (the method that runs chains of N > 1 cells)"
     if args.json:
         d = {**result.as_dict(), "cells": chain.n_cells, "cell_transmittance_linear_db": lin,
              "stop_bands": None if bands is None else
              [[lo, hi if math.isfinite(hi) else None] for lo, hi in bands]}  # fmt: skip
         print(json.dumps(d))
         if chosen:
-            print(f"method: {note}", file=sys.stderr)
+            print(f"method: {_CHAIN_METHOD_NOTE}", file=sys.stderr)
     if result.failed:
         raise Failure(f"the point failed: {result.reason}")
     if args.json:
         return 0
     if chosen:
-        print(f"method: {note}")
+        print(f"method: {_CHAIN_METHOD_NOTE}")
     print(f"cells               {chain.n_cells} (Γ below is the last cell's, Γ_N)")
     _print_point(result)
+    if result.cell_transmittance_db is not None:
+        cells = ", ".join(f"{v:.4f}" for v in result.cell_transmittance_db)
+        print(f"Γ_j by cell         {cells} dB (cell 1 first)")
     if lin is not None:
         print(f"Γ_j,lin by cell     {', '.join(f'{v:.4f}' for v in lin)} dB (cell 1 first)")
     if bands is None:
@@ -311,9 +317,13 @@ def _cmd_chain_point(args: argparse.Namespace) -> int:
 
 
 def _cmd_spectrum(args: argparse.Namespace) -> int:
-    from worker.simulate import simulate_point
+    from worker.simulate import simulate_chain_point, simulate_point
 
     names = _flags(args)
+    chained = args.cells > 1 or args.gaps is not None or args.sigmas is not None
+    chosen = chained and args.method is None and args.cells > 1
+    if chosen:
+        args = argparse.Namespace(**{**vars(args), "method": "euler"})
     settings = _flagged(names, lambda: _settings(args))
     # Both ends checked first, each named by its flag (the frequencies between are in range).
     for end in ("start", "stop"):
@@ -321,9 +331,17 @@ def _cmd_spectrum(args: argparse.Namespace) -> int:
         _flagged(_flags(args, gamma_r=f"--gamma-r-{end}"), lambda v=value: _params(args, v))
     rows = []
     for g in np.linspace(args.gamma_r_start, args.gamma_r_stop, args.num):
-        params = _flagged(names, lambda g=g: _params(args, float(g)))
-        r = _flagged(names, lambda p=params: simulate_point(p, settings))
+        if chained:  # Γ_N of a chain (docs/chains.md), its cells' values in the JSON
+            at = argparse.Namespace(**{**vars(args), "gamma_r": float(g)})
+            chain = _chain(at, names)
+            r = _flagged({**names, "n_cells": "--cells"},
+                         lambda c=chain: simulate_chain_point(c, settings))  # fmt: skip
+        else:
+            params = _flagged(names, lambda g=g: _params(args, float(g)))
+            r = _flagged(names, lambda p=params: simulate_point(p, settings))
         rows.append((float(g), r))
+    if chosen:
+        print(f"method: {_CHAIN_METHOD_NOTE}", file=sys.stderr if args.json else sys.stdout)
     if args.json:
         print(json.dumps([{"gamma_r": g, **r.as_dict()} for g, r in rows]))
         return 0
@@ -392,6 +410,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gamma-r-start", type=float, default=0.2, help="first γ_r")
     p.add_argument("--gamma-r-stop", type=float, default=6.0, help="last γ_r")
     p.add_argument("--num", type=positive_int, default=30, help="frequencies, evenly spaced")
+    _chain_arguments(p)
     p.add_argument("--json", action="store_true", help="a JSON list on stdout")
     p.set_defaults(func=_cmd_spectrum)
 

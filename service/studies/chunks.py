@@ -55,7 +55,13 @@ import xarray as xr
 from service.studies.dataset import FILL_INT, PENDING, encoding, open_results, write_netcdf
 from service.studies.fence import Fence
 from service.studies.schema import Study
-from service.studies.variables import OUTCOMES, SWEEP_VARIABLES, VARIABLES, outcome_codes
+from service.studies.variables import (
+    CHAIN_VARIABLES,
+    OUTCOMES,
+    SWEEP_VARIABLES,
+    VARIABLES,
+    outcome_codes,
+)
 from worker.simulate import SOLVER_VERSION
 from worker.solvers.settings import TRANSIENT_NOTE
 
@@ -221,17 +227,36 @@ def with_transient_flag(record: Mapping[str, Any]) -> Mapping[str, Any]:
     return {**record, "may_be_transient": flagged, "impacting_periods": periods}
 
 
+def _unit_cell(record: Mapping[str, Any], name: str) -> list[Any] | None:
+    """A per-cell field of a unit cell's record (N = 1 of a chain study): its own Γ, proven
+    (linear, periodic) or not given, and its Γ_lin."""
+    if name == "cell_transmittance_linear_db":
+        return [record.get("transmittance_linear_db")]
+    if record.get("outcome") in ("linear", "periodic"):
+        return [record.get("transmittance_db")]
+    return None
+
+
 def record_columns(
-    records: Sequence[Mapping[str, Any]], fields: Sequence[str] = CHUNK_FIELDS
+    records: Sequence[Mapping[str, Any]], fields: Sequence[str] = CHUNK_FIELDS, cells: int = 1
 ) -> dict[str, np.ndarray]:
     """Per-field arrays of result records (chunk files, the point store's exports); ``None``
     becomes NaN (floats) or -1 (ints), the ``outcome`` string its flag value; a record without
-    ``may_be_transient`` gets it from :func:`with_transient_flag`."""
+    ``may_be_transient`` gets it from :func:`with_transient_flag`. A chain's per-cell fields
+    (``CHAIN_VARIABLES``) are ``cells`` columns wide, NaN beyond a point's own N."""
     if "may_be_transient" in fields or "impacting_periods" in fields:
         records = [with_transient_flag(r) for r in records]
     n = len(records)
     cols: dict[str, np.ndarray] = {}
     for name in fields:
+        if name in CHAIN_VARIABLES:
+            arr = np.full((n, cells), np.nan)
+            for i, r in enumerate(records):
+                v = r.get(name) if "cells" in r else _unit_cell(r, name)
+                if v is not None:
+                    arr[i, : len(v)] = [np.nan if x is None else float(x) for x in v[:cells]]
+            cols[name] = arr
+            continue
         var = VARIABLES[name] if name in VARIABLES else SWEEP_VARIABLES[name]
         if name == "impacts_per_period":
             arr = np.full((n, 2), np.nan)
@@ -333,6 +358,10 @@ class StudyStore:
         self.chunk_dir = self.folder / "chunks"
         #: The fields its chunk files keep (a sweep's also say where each point started).
         self.fields = CHUNK_FIELDS + (LINE_FIELDS if study.sweep is not None else ())
+        #: A chain study's longest chain: its per-cell columns' width (1: no such columns).
+        self.cells = study.max_cells()
+        if self.cells > 1:
+            self.fields += tuple(CHAIN_VARIABLES)
         # Chunk files this store wrote: name -> (the file's stamp when written, its columns as
         # np.load gives them); used only while the file on disk is still that file.
         self._held: dict[str, tuple[tuple[int, int, int], dict[str, np.ndarray]]] = {}
@@ -379,7 +408,7 @@ class StudyStore:
             raise ValueError(
                 f"chunk {start}-{stop} needs {stop - start} records, got {len(records)}"
             )
-        cols = record_columns(records, self.fields)
+        cols = record_columns(records, self.fields, self.cells)
         token = None if self.fence is None else self.fence.token
         path = self.chunk_dir / chunk_name(start, stop, token)
         data = {"_start": np.array(start), "_stop": np.array(stop), "_retry": np.array(retry),
@@ -631,7 +660,7 @@ class StudyStore:
         rec = failed_result(SolverSettings(**self.study.solver.model_dump()), PENDING)
         n = self.study.size
         cols: dict[str, np.ndarray] = {}
-        for name, arr in record_columns([rec], self.fields).items():
+        for name, arr in record_columns([rec], self.fields, self.cells).items():
             dtype = object if arr.dtype.kind == "U" else arr.dtype
             cols[name] = np.empty((n, *arr.shape[1:]), dtype=dtype)
             cols[name][:] = arr[0]

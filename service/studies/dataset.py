@@ -42,10 +42,12 @@ from service.studies.provenance import provenance_attrs
 from service.studies.schema import Study
 from service.studies.variables import (
     AXES,
+    CHAIN_VARIABLES,
     MISSING_INT,
     PHYSICAL_VARIABLES,
     SWEEP_VARIABLES,
     VARIABLES,
+    cell_coordinate,
     outcome_counts,
     outcome_names,
     result_values,
@@ -58,6 +60,7 @@ __all__ = [
     "FILL_INT",
     "PENDING",
     "encoding",
+    "lattice_stop_bands",
     "json_number",
     "json_text",
     "jsonable",
@@ -81,6 +84,24 @@ _DERIVED = ("gamma_r", "theta", "sigma", "gamma_s", "xi", "g1", "g2")
 def _attrs(name: str) -> dict[str, str]:
     info = AXES[name]
     return {"units": info.units, "long_name": info.long_name}
+
+
+#: Axes along which the infinite lattice of a chain study's cell stays the same (its stop
+#: bands are those of the stop-free cell, in γ_r).
+_LATTICE_FREE_AXES = frozenset({"cells", "gamma_r", "gap", "g1", "g2"})
+
+
+def lattice_stop_bands(study: Study) -> list[tuple[float, float]] | None:
+    """The stop bands (γ_r) of the infinite lattice of a chain study's cell, or ``None`` where
+    the study has no single cell (σ graded or varied, θ, γ_s, ξ varied)."""
+    from worker.model import CellParams
+    from worker.model.chain import stop_bands
+
+    if study.model.sigmas is not None or not set(study.dims()) <= _LATTICE_FREE_AXES:
+        return None
+    point = study.points(0, 1, grid=True)[0]
+    fields = {k: v for k, v in point.items() if not k.startswith("cell")}
+    return stop_bands(CellParams(**fields))
 
 
 def results_from_records(
@@ -146,6 +167,15 @@ def results_from_records(
             data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
         else:
             data_vars[name] = (dims, a.reshape(shape), attrs)
+    longest = study.max_cells()
+    if longest > 1:  # a chain study: per-cell variables along ``cell``
+        coords["cell"] = cell_coordinate(longest)
+        if study.model.cells is not None:
+            coords["cells"] = ((), np.int32(longest), _attrs("cells"))
+        for name, var in CHAIN_VARIABLES.items():
+            if var.group in groups and name in cols:
+                a, attrs = result_values(name, cols[name], failed)
+                data_vars[name] = ((*dims, "cell"), a.reshape(*shape, longest), attrs)
     if study.is_physical and "amplitude" in data_vars:
         # Metres as well as units of B; B = U_g/(θγ_s) differs from point to point.
         scale = np.array([c.length_scale_m(f) for c, f in cells]).reshape(grid_shape)
@@ -159,6 +189,7 @@ def results_from_records(
             dims, a.reshape(shape), {"units": var.units, "long_name": var.long_name}
         )  # fmt: skip
     provenance = provenance_attrs()
+    bands = lattice_stop_bands(study) if longest > 1 else None
     attrs = {
         "Conventions": "CF-1.8",
         "title": f"impactcell study {study.name}",
@@ -177,6 +208,11 @@ def results_from_records(
             "missing (_FillValue) and reason says why"
         ),
     }
+    if bands is not None:
+        # JSON text: a band open to gamma_r -> inf has null as its upper edge
+        attrs["lattice_stop_bands"] = json.dumps(
+            [[lo, hi if math.isfinite(hi) else None] for lo, hi in bands]
+        )
     if computed is not None:
         data_vars["pending"] = (
             dims,

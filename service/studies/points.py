@@ -30,7 +30,7 @@ from typing import Any, Protocol
 from service.studies.schema import Study
 from worker.cpu import on_pinned_target, target_label
 from worker.model import CellParams
-from worker.simulate import POINT_KEYS, SOLVER_VERSION, SolverSettings
+from worker.simulate import CHAIN_POINT_KEYS, POINT_KEYS, SOLVER_VERSION, SolverSettings
 from worker.solvers.settings import OVER_STEPS, OVER_TIME
 
 __all__ = [
@@ -81,6 +81,11 @@ def cell_of(point: Mapping[str, Any]) -> dict[str, Any]:
         v = out[k]  # KeyError: a required parameter is missing
         if v is not None:
             out[k] = _TYPES.get(k, float)(v)
+    if "cells" in point:  # a chain (N > 1): its length and graded lists are part of its key
+        out["cells"] = int(point["cells"])
+        for k in CHAIN_POINT_KEYS[1:]:
+            if point.get(k) is not None:
+                out[k] = [float(v) for v in point[k]]
     return out
 
 

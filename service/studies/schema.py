@@ -41,6 +41,7 @@ from service.studies.files import nul_paths, read_study_file
 from service.studies.grid import AXIS_TAGS, Range, Real, StrictModel, axis_size, axis_values
 from service.studies.limits import DEFAULT_MAX_POINTS
 from service.studies.specs import (
+    MAX_STEPS_PER_POINT,
     PER_FREQUENCY_FIELDS,
     AdaptiveSpec,
     AmplitudeTable,
@@ -56,7 +57,7 @@ from service.studies.specs import (
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
 from worker.model import CellParams
 from worker.physical import CELL_FIELDS, PhysicalCell
-from worker.simulate import SOLVER_VERSION
+from worker.simulate import CHAIN_METHODS, SOLVER_VERSION
 
 __all__ = [
     "DEFAULT_COEXISTENCE_TOL_DB",
@@ -382,13 +383,47 @@ class Study(StrictModel):
 
     def model_point(self, values: Mapping[str, float]) -> dict[str, Any]:
         """The ``CellParams`` keyword dict of a non-dimensional point from its grid axes'
-        values (``gap`` sets both stops; ``xi`` from the model block unless an axis)."""
+        values (``gap`` sets both stops; ``xi`` from the model block unless an axis).
+
+        A chain of N > 1 cells adds ``cells`` and, for a graded chain, ``cell_g1``,
+        ``cell_g2`` and ``cell_sigma`` (the worker's ``CHAIN_POINT_KEYS``); its own g1, g2 and
+        σ are cell 1's. A point of N = 1 is the unit cell's dict, whatever the study says."""
         row = dict(values)
+        m = self.model
+        n = int(row.pop("cells", m.cells or 1))
         if "gap" in row:
             g = row.pop("gap")
             row["g1"] = row["g2"] = g
-        row.setdefault("xi", self.model.xi)
+        row.setdefault("xi", m.xi)
+        if m.gaps is not None:
+            row["g1"] = row["g2"] = float(m.gaps[0])
+            if n > 1:
+                row["cell_g1"] = row["cell_g2"] = [float(v) for v in m.gaps]
+        if m.sigmas is not None:
+            row["sigma"] = float(m.sigmas[0])
+            if n > 1:
+                row["cell_sigma"] = [float(v) for v in m.sigmas]
+        if n > 1:
+            row["cells"] = n
         return {**row, **self._common()}
+
+    def max_cells(self) -> int:
+        """The longest chain of the study (1: unit cells only)."""
+        if self.model.cells is not None:
+            return int(self.model.cells)
+        if self.grid.cells is not None:
+            return int(axis_values(self.grid.cells).max())
+        return 1
+
+    def cell_points(self) -> int:
+        """What the study's points cost in cells: each point counts N (arithmetic)."""
+        sizes = self.sizes()
+        if self.grid.cells is not None:
+            rest = math.prod(v for k, v in sizes.items() if k != "cells")
+            per = float(axis_values(self.grid.cells).sum())
+        else:
+            rest, per = math.prod(sizes.values()), float(self.model.cells or 1)
+        return int(per * rest * self.n_initial * self.n_directions)
 
     # ---------------------------------------------------------------- adaptive lines
 
@@ -430,7 +465,7 @@ class Study(StrictModel):
             out += _sweep_problems(self.sweep, self.grid)
         if self.adaptive is not None:
             out += _adaptive_problems(self)
-        return out
+        return _chain_problems(self, out, max_points)
 
     def _lead_sizes(self) -> dict[str, int]:
         """Sizes of the dimensions before the grid's (initial states, directions)."""
@@ -440,6 +475,63 @@ class Study(StrictModel):
         if self.sweep is not None and self.n_directions > 1:
             lead["direction"] = self.n_directions
         return lead
+
+
+#: What a chain's per-cell lists replace on the grid.
+_PER_CELL_AXES = {"gaps": ("gap", "g1", "g2"), "sigmas": ("sigma",)}
+
+
+def _chain_problems(
+    study: Study, found: list[tuple[str, str]], max_points: int | None
+) -> list[tuple[str, str]]:
+    """``found`` with a chain's rules: per-cell lists in place of their grid axes, N in one
+    place, what chains of N > 1 cells run with, and the point budget counted in cells."""
+    m, given = study.model, study.grid.given()
+    out = list(found)
+    for name, axes in _PER_CELL_AXES.items():
+        if getattr(m, name) is None:
+            continue
+        # the list gives what the grid would: its "is required" problems are answered
+        out = [(k, v) for k, v in out if not (k in {f"grid.{a}" for a in axes}
+                                               and v.startswith("is required"))]  # fmt: skip
+        for a in axes:
+            if a in given:
+                out.append((f"grid.{a}", f"is given per cell by model.{name}; give it in one "
+                            "place"))  # fmt: skip
+    if m.cells is not None and "cells" in given:
+        out.append(("grid.cells", "is also given as model.cells; give it in one place"))
+    if "cells" in given and (m.gaps is not None or m.sigmas is not None):
+        out.append(("grid.cells", "per-cell lists (model.gaps, model.sigmas) need one chain "
+                    "length: give model.cells instead"))  # fmt: skip
+    if out or study.max_cells() == 1:
+        return out
+    why = "chains of N > 1 cells"
+    method = study.solver.method
+    if method not in CHAIN_METHODS:
+        out.append(("solver.method", f"{method!r} does not run {why} yet; give method: "
+                    f"{' or '.join(CHAIN_METHODS)} (docs/chains.md)"))  # fmt: skip
+    if study.physical is not None:
+        out.append(("physical", f"{why} are non-dimensional studies (model.cells, grid.cells "
+                    "with a model grid)"))  # fmt: skip
+    if study.sweep is not None:
+        out.append(("sweep", f"is not available for {why} yet"))
+    if study.adaptive is not None:
+        out.append(("adaptive", f"is not available for {why} yet"))
+    if study.initial is not None and study.initial_labels() != ["rest"]:
+        out.append(("initial", f"{why} start from rest (initial: rest)"))
+    spp = study.solver.steps_per_period
+    n = study.max_cells()
+    if spp is not None and study.solver.max_periods * spp * n > MAX_STEPS_PER_POINT:
+        out.append(("solver.steps_per_period", (
+            f"max_periods × steps_per_period × cells must be <= {MAX_STEPS_PER_POINT:.0e} "
+            f"(one point's step budget, a chain's steps counted per cell), got "
+            f"{study.solver.max_periods} × {spp} × {n}")))  # fmt: skip
+    limit = DEFAULT_MAX_POINTS if max_points is None else max_points
+    cost = study.cell_points()
+    if cost > limit:
+        out.append(("grid", f"has {cost:,} cell-points (each point counts its N cells), more "
+                    f"than the limit of {limit:,}"))  # fmt: skip
+    return out
 
 
 def _adaptive_problems(study: Study) -> list[tuple[str, str]]:

@@ -55,6 +55,7 @@ __all__ = [
     "MAX_RANDOM_INITIAL",
     "MAX_STEPS_PER_POINT",
     "PER_FREQUENCY_FIELDS",
+    "STUDY_MAX_CELLS",
     "STUDY_SOLVER_CAPS",
     "AmplitudeTable",
     "Grid",
@@ -198,15 +199,95 @@ def spec_model(
 
 # --------------------------------------------------------------------------- the blocks
 
+#: The longest chain a study may ask for (``model.cells``, ``grid.cells``): a point's cost
+#: grows about as N² (docs/chains.md), and a 100-cell point takes seconds to minutes.
+STUDY_MAX_CELLS = 100
+#: ``cells``' metadata, as a CellParams field's (bounds, why): the chain's length N.
+CELLS_META: dict[str, Any] = {
+    "ge": 1, "le": STUDY_MAX_CELLS, "integer": True,
+    "why": "cells in series (1: the unit cell); a point's cost grows about as N²",
+}  # fmt: skip
+
+
+def _per_cell_values(name: str, meta: Mapping[str, Any], values: list[float] | None
+                     ) -> list[float] | None:  # fmt: skip
+    """A per-cell list's values, each checked against the cell parameter's range."""
+    if values is None:
+        return None
+    for i, v in enumerate(values):
+        problem = violation(name, v, meta)
+        if problem is not None:
+            raise ValueError(f"{problem} (value {i}: cell {i + 1})")
+    return values
+
+
+class _ChainFields(StrictModel):
+    """A chain of N cells in series (docs/chains.md): absent, the unit cell."""
+
+    cells: Integer | None = Field(
+        None,
+        description=_described("Cells in series N: a chain (docs/chains.md); absent: 1, the "
+                               "unit cell. Or a grid axis.", CELLS_META),
+        json_schema_extra=_schema_bounds(CELLS_META),
+    )  # fmt: skip
+    gaps: list[Real] | None = Field(
+        None, min_length=1, max_length=STUDY_MAX_CELLS,
+        description="The gap of each cell (both stops), cell 1 first: a graded chain; one "
+        "value per cell (model.cells), instead of grid.gap.",
+    )  # fmt: skip
+    sigmas: list[Real] | None = Field(
+        None, min_length=1, max_length=STUDY_MAX_CELLS,
+        description="σ of each cell, cell 1 first: graded resonators; one value per cell "
+        "(model.cells), instead of grid.sigma.",
+    )  # fmt: skip
+
+    @field_validator("cells")
+    @classmethod
+    def _cells(cls, n: int | None) -> int | None:
+        if n is not None and not 1 <= n <= STUDY_MAX_CELLS:
+            got = n if abs(n) < 10**20 else shown(n)
+            raise ValueError(f"cells must be an integer in 1…{STUDY_MAX_CELLS}, got {got}")
+        return n
+
+    @field_validator("gaps")
+    @classmethod
+    def _gaps(cls, values: list[float] | None) -> list[float] | None:
+        return _per_cell_values("gaps", _CELL_META["g1"], values)
+
+    @field_validator("sigmas")
+    @classmethod
+    def _sigmas(cls, values: list[float] | None) -> list[float] | None:
+        return _per_cell_values("sigmas", _CELL_META["sigma"], values)
+
+    @model_validator(mode="after")
+    def _lengths(self) -> _ChainFields:
+        for name in ("gaps", "sigmas"):
+            values = getattr(self, name)
+            if values is not None and len(values) != (self.cells or 1):
+                raise ValueError(
+                    f"{name} has {len(values)} values but model.cells is {self.cells or 1}; "
+                    "give one value per cell (and model.cells)"
+                )
+        return self
+
+    def chain_length(self) -> int | None:
+        """N when the model block gives it, else None (1, or a grid axis)."""
+        return self.cells
+
+
+_CELL_META = {f.name: dict(f.metadata) for f in dataclasses.fields(CellParams)}
+
 ModelSpec = spec_model(
     "ModelSpec",
     CellParams,
-    "The cell model: coupling, number of modes, damping (docs/model.md §3).",
+    "The cell model: coupling, number of modes, damping (docs/model.md §3), and a chain of "
+    "N cells (cells, gaps, sigmas: docs/chains.md).",
     # CellParams without its grid axes, and ξ (the default for every point unless the grid
     # varies it)
     tuple(
         f.name for f in dataclasses.fields(CellParams) if f.name not in MODEL_AXES or f.name == "xi"
     ),  # noqa: E501
+    base=_ChainFields,
 )
 
 
@@ -394,7 +475,7 @@ def _axis_meta() -> dict[str, dict[str, Any]]:
     physical = {f.name: dict(f.metadata) for f in dataclasses.fields(PhysicalCell)}
     out: dict[str, dict[str, Any]] = {}
     for axis in MODEL_AXES:
-        out[axis] = cell[AXIS_PARAMETER.get(axis, axis)]
+        out[axis] = CELLS_META if axis == "cells" else cell[AXIS_PARAMETER.get(axis, axis)]
     for axis in PHYSICAL_AXES:
         out[axis] = FREQUENCY_HZ if axis == "frequency_hz" else physical[axis]
     return out
@@ -442,6 +523,8 @@ class _GridBase(StrictModel):
             return value
         name = info.field_name
         assert name is not None
+        if name == "cells":
+            _whole_cells(value)
         meta = AXIS_BOUNDS[name]
         if isinstance(value, Range):
             # A range is checked by its ends, never built: its values lie between them.
@@ -471,6 +554,19 @@ class _GridBase(StrictModel):
         """The axes that are set, by name."""
         names = type(self).model_fields
         return {k: getattr(self, k) for k in names if getattr(self, k) is not None}
+
+
+def _whole_cells(value: Any) -> None:
+    """A ``cells`` axis holds whole numbers of cells (at most ``STUDY_MAX_CELLS`` values)."""
+    size = value.size if isinstance(value, Range) else len(value) if isinstance(value, list) else 1
+    if size > STUDY_MAX_CELLS:
+        raise ValueError(f"has {size:,} values; a chain has 1…{STUDY_MAX_CELLS} cells")
+    values = axis_values(value)
+    frac = values != np.round(values)
+    if np.any(frac):
+        i = int(np.argmax(frac))
+        where = f" (value {i})" if values.size > 1 else ""
+        raise ValueError(f"cells must be whole numbers of cells, got {values[i]:g}{where}")
 
 
 def _float_or_inf(v: float) -> float:

@@ -31,6 +31,7 @@ from worker.solvers.settings import OUTCOMES
 __all__ = [
     "AXES",
     "AXIS_PARAMETER",
+    "CHAIN_VARIABLES",
     "FREQUENCY_AXES",
     "MODEL_AXES",
     "OUTCOMES",
@@ -49,6 +50,7 @@ __all__ = [
     "outcome_counts",
     "outcome_names",
     "result_values",
+    "cell_coordinate",
     "stop_coordinate",
 ]
 
@@ -57,8 +59,9 @@ __all__ = [
 
 # Canonical axis order (the dataset's dimension order, independent of the file's key order).
 # γ_r is last so that a chunk of consecutive points is a piece of one spectrum.
-# The axes are CellParams' real-valued parameters (not the optional xi_b) plus ``gap`` (both
-# stops at once): the stops first, then the parameters in CellParams' order.
+# The axes are CellParams' real-valued parameters (not the optional xi_b) plus ``cells`` (a
+# chain's length) and ``gap`` (both stops at once): the chain first, the stops, then the
+# parameters in CellParams' order.
 AXIS_PARAMETER: dict[str, str] = {"gap": "g1"}  # an axis that is not a parameter -> the rule
 _CELL_AXES = tuple(
     f.name
@@ -66,6 +69,7 @@ _CELL_AXES = tuple(
     if not ({"choices", "integer", "boolean", "optional"} & set(f.metadata))
 )
 MODEL_AXES: tuple[str, ...] = (
+    "cells",  # a chain's length N (docs/chains.md); not a CellParams field
     "gap",
     "g1",
     "g2",
@@ -92,6 +96,8 @@ class AxisInfo:
 
 AXES: dict[str, AxisInfo] = {
     "gamma_r": AxisInfo("1", "excitation frequency gamma_r = Omega / omega_b", "γ_r", "Ω/ω_b"),
+    "cells": AxisInfo("1", "number of cells N of the chain (1: the unit cell)", "N"),
+    "cell": AxisInfo("1", "cell index j along the chain, 1 at the base", "cell j"),
     "gap": AxisInfo("1", "clearance to both stops g1 = g2, in units of B", "g̃", "g̃₁ = g̃₂"),
     "g1": AxisInfo("1", "clearance to stop 1, in units of B", "g̃₁"),
     "g2": AxisInfo("1", "clearance to stop 2, in units of B", "g̃₂"),
@@ -285,6 +291,26 @@ SWEEP_VARIABLES: dict[str, Variable] = {
 }  # fmt: skip
 
 
+# Per-cell variables of a chain study (docs/chains.md), over a ``cell`` dimension of the
+# study's largest N: missing beyond a point's own N. Not in VARIABLES: a study of unit cells
+# has exactly the datasets it always had.
+CHAIN_VARIABLES: dict[str, Variable] = {
+    "cell_transmittance_db": Variable(
+        "transmittance", "float", "dB",
+        "transmittance Gamma_j = 20 log10(A_j / (theta gamma_s)) of cell j's outer mass: "
+        "exact over the orbit of a periodic point, the closed form at a linear one; missing "
+        "at irregular, unsettled and failed points (not proven) and beyond the point's N",
+    ),
+    "cell_transmittance_linear_db": Variable(
+        "transmittance", "float", "dB",
+        "linear reference Gamma_j,lin of cell j: the same chain with the stops removed "
+        "(closed form, docs/model.md section 11); missing beyond the point's N and where no "
+        "closed form exists",
+        mask=False,
+    ),
+}  # fmt: skip
+
+
 # --------------------------------------------------------------------------- stored values
 
 #: An integer result a point does not have (``maskint``: e.g. no response period), in records.
@@ -297,7 +323,7 @@ def result_values(
     """A result variable as every dataset stores it: values of its kind's dtype (``maskint``
     and, at failed points, masked floats as NaN: NetCDF fill values on disk) and its CF
     attributes. One place for what a study's results and a point-store query both hold."""
-    var = VARIABLES[name]
+    var = VARIABLES[name] if name in VARIABLES else CHAIN_VARIABLES[name]
     a = np.asarray(values)
     if var.kind in ("float", "maskint"):
         a = a.astype(np.float64)
@@ -325,6 +351,13 @@ def stop_coordinate() -> tuple[str, np.ndarray, dict[str, str]]:
     info = AXES["stop"]
     return ("stop", np.array([1, 2], dtype=np.int8), {"units": info.units,
                                                        "long_name": info.long_name})  # fmt: skip
+
+
+def cell_coordinate(n: int) -> tuple[str, np.ndarray, dict[str, str]]:
+    """The ``cell`` coordinate (1 … n) of a chain study's per-cell variables."""
+    info = AXES["cell"]
+    return ("cell", np.arange(1, n + 1, dtype=np.int32), {"units": info.units,
+                                                         "long_name": info.long_name})  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the outcome flag

@@ -172,3 +172,51 @@ def test_bad_chain_points_are_refused():
                              euler(16))  # fmt: skip
     with pytest.raises(ValueError, match="chain must be a ChainParams"):
         simulate_chain_point(CELL, euler(256))  # type: ignore[arg-type]
+
+
+def test_every_cells_gamma_is_proven_or_absent():
+    # periodic: Γ_j from the orbit run again; the last is the point's Γ_N
+    cp = ChainParams(cell=CELL, n_cells=3)
+    r = simulate_chain_point(cp, euler(512))
+    assert r.outcome == "periodic" and r.cells == 3
+    assert len(r.cell_transmittance_db) == 3
+    assert r.cell_transmittance_db[-1] == pytest.approx(r.transmittance_db, abs=1e-9)
+    assert len(set(np.round(r.cell_transmittance_db, 6))) == 3  # each cell its own
+    np.testing.assert_array_equal(r.cell_transmittance_linear_db,
+                                  chain_linear_transmittance_db(cp))  # fmt: skip
+    # linear: the closed form at every cell
+    far = ChainParams(cell=FAR, n_cells=3)
+    r = simulate_chain_point(far, euler(512))
+    assert r.outcome == "linear"
+    np.testing.assert_array_equal(r.cell_transmittance_db, chain_linear_transmittance_db(far))
+    # an unproven point has no per-cell Γ; the record names N either way
+    r = simulate_chain_point(cp, euler(512, max_periods=30, window=10))
+    assert r.outcome == "unsettled" and r.cell_transmittance_db is None
+    assert r.as_dict()["cells"] == 3 and "cell_transmittance_db" in r.as_dict()
+    # a unit cell's record is what it always was
+    assert "cells" not in simulate_point(CELL, euler(512)).as_dict()
+
+
+def test_a_chain_point_of_a_study_runs_or_fails_with_its_chain_fields():
+    from worker.simulate import simulate_chunk
+
+    base = {k: getattr(CELL, k) for k in ("theta", "sigma", "gamma_s", "gamma_r", "xi",
+                                          "g1", "g2", "modes", "coupling")}  # fmt: skip
+    pts = [
+        {**base, "cells": 2},
+        {**base, "cells": 2, "cell_g1": [0.1, 0.1], "cell_g2": [0.1, 0.1]},
+        {**base, "cells": 2, "cell_g1": [0.1]},
+        {**base, "cells": 2, "initial": {"kind": "linear"}},
+    ]
+    uniform, graded, short, started = simulate_chunk(
+        pts, {"method": "euler", "steps_per_period": 512}
+    )
+    # a graded chain of identical cells is the uniform chain
+    uniform.pop("wall_s"), graded.pop("wall_s")
+    assert uniform == graded and uniform["cells"] == 2
+    assert short["failed"] and "g1 must have one value per cell" in short["reason"]
+    assert short["cells"] == 2 and short["cell_transmittance_linear_db"] is None  # no chain
+    assert started["failed"] and "starts from rest" in started["reason"]
+    # a valid chain that cannot be run keeps its closed form
+    assert started["cell_transmittance_linear_db"] == uniform["cell_transmittance_linear_db"]
+    assert started["transmittance_linear_db"] == uniform["transmittance_linear_db"]

@@ -55,18 +55,21 @@ PROOF_MAX_ENTRIES = 4_000_000
 @njit(**ms.KERNEL_JIT)
 def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, spp,
                        gamma_r, f_scale, MinvC, MinvK, Minv_es, MinvX, f_sin, f_cos, W, d, G,
-                       g1, g2, contact, lam1, lam2, use_lemke, lcp_M, lcp_q, lcp_T, lcp_basis,
-                       lcp_cand, lcp_B, lcp_xb, lcp_z, lin_L, lin_xp, lin_amp, lin_gate,
-                       div_limit, tol, xn):  # fmt: skip
+                       g1, g2, contact, lam1, lam2, cell_ext, use_lemke, lcp_M, lcp_q, lcp_T,
+                       lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z, lin_L, lin_xp, lin_amp,
+                       lin_gate, div_limit, tol, xn):  # fmt: skip
     """Advance up to ``n_periods`` periods of the chain; returns (periods done, END code,
     period found). ``W``, ``MinvX`` are (N, b): cell j's rows on its own block of b = n + 1
-    coordinates; ``contact`` (N) holds each cell's contact episode between batches."""
+    coordinates; ``contact`` (N) holds each cell's contact episode between batches;
+    ``cell_ext`` (N × 2, or empty: off) accumulates each cell's outer-mass extrema, min and max,
+    as the period rows do for the last cell."""
     nx = x.shape[0]
     nd = nx // 2
     ncell = W.shape[0]
     b = W.shape[1]
     n = b - 1
     sN = nd - 1  # the last cell's outer mass
+    track = cell_ext.shape[0] > 0
     oN = nd - b  # the last cell's block
     T = 2.0 * math.pi / gamma_r
     dt = T / spp
@@ -130,6 +133,12 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                         xn[nd + off + i] += MinvX[c, i] * P
             for i in range(nd):
                 xn[i] = x[i] + dt * xn[nd + i]
+            if track:
+                for c in range(ncell):
+                    sj = (c + 1) * b - 1
+                    cell_ext[c, 0], cell_ext[c, 1] = extrema(
+                        x[sj], x[nd + sj], xn[sj], xn[nd + sj], dt, cell_ext[c, 0], cell_ext[c, 1]
+                    )
             if measure:
                 # the rectangle rule over whole periods, on the last cell (as euler_kernel)
                 sbv = ms.dot(d, x[oN:], n)
@@ -341,10 +350,14 @@ def cell_blocks(cs: ChainSystem) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
 class ChainSteppingRun(SteppingRun):
     """What a chain's time-stepping runs share: no per-period tail check in the kernel (the
     chain's proof is per cell and runs in the engine), and one contact episode per cell
-    (``contact``, kept between batches, saved and restored with the state). Subclasses set
-    ``contact``, ``_W`` (N, b), ``_g1``, ``_g2`` in ``__init__``."""
+    (``contact``, kept between batches, saved and restored with the state), and every cell's
+    range over an orbit (``cell_ranges``). Subclasses set ``contact``, ``_W`` (N, b), ``_g1``,
+    ``_g2`` in ``__init__``, and ``cell_ext`` (an empty (0, 2) array: off), which their kernel
+    takes among its ``arrays`` and fills with each cell's outer-mass extrema when it is not
+    empty."""
 
     contact: np.ndarray
+    cell_ext: np.ndarray
     _W: np.ndarray
     _g1: np.ndarray
     _g2: np.ndarray
@@ -357,6 +370,24 @@ class ChainSteppingRun(SteppingRun):
         self.lin_L = np.zeros((0, self.nx), dtype=complex)
         self.lin_xp = np.zeros(self.nx)
         self.lin_amp, self.lin_gate = 0.0, -1.0
+
+    def cell_ranges(self, x0: np.ndarray, periods: int) -> np.ndarray:
+        """Each cell's outer-mass half-range (max − min) / 2 over ``periods`` periods from the
+        state ``x0`` at forcing phase 0, cell 1 first, by the same steps and the same in-step
+        extrema as the period rows (the last cell's is the rows' amplitude). Resets the run."""
+        N = self.contact.shape[0]
+        ext = np.empty((N, 2))
+        ext[:, 0], ext[:, 1] = np.inf, -np.inf
+        at = next(i for i, a in enumerate(self.arrays) if a is self.cell_ext)
+        off = self.arrays
+        self.arrays = (*off[:at], ext, *off[at + 1 :])
+        try:
+            self.reset(x0)
+            self.advance(periods, False, 0, np.zeros((periods, ms.ROW)),
+                         np.zeros((periods, self.nx)))  # fmt: skip
+        finally:
+            self.arrays = off
+        return 0.5 * (ext[:, 1] - ext[:, 0])
 
     def reset(self, x0: np.ndarray) -> None:
         """Start from the chain state ``x0`` at forcing phase 0; a cell already on a stop has
@@ -409,10 +440,11 @@ class ChainEulerRun(ChainSteppingRun):
         W, MinvX, g1, g2 = cell_blocks(cs)
         G = np.array([s.G for s in cs.cells])
         self.contact = np.zeros(N)
+        self.cell_ext = np.zeros((0, 2))  # off until ``cell_ranges`` turns it on
         self.arrays = (
             self.spp, p.cell.gamma_r, self.f_scale, c(cs.Minv @ cs.C), c(cs.Minv @ cs.K),
             c(cs.Minv[:, cs.s_index[0]]), MinvX, cs.f_sin, cs.f_cos, W, cs.cells[-1].d, G, g1,
-            g2, self.contact, np.zeros(N), np.zeros(N), settings.lcp == "lemke",
+            g2, self.contact, np.zeros(N), np.zeros(N), self.cell_ext, settings.lcp == "lemke",
             np.zeros((2 * N, 2 * N)), np.zeros(2 * N), *lemke_workspace(2 * N),
         )  # fmt: skip
         self._W, self._g1, self._g2 = W, g1, g2

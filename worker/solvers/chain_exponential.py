@@ -167,18 +167,31 @@ def _portrait(gl, glb, P, x, cf, sf, dt, nx, ncell):
     return dt * vv, dt * vb
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _track(cell_ext, x, v0, xn, nd, b, ncell, dt):
+    """Each cell's outer-mass extrema widened by one step from ``x`` (its velocity ``v0[c]`` at
+    the step's start, after any impulse) to ``xn``."""
+    for c in range(ncell):
+        sj = (c + 1) * b - 1
+        cell_ext[c, 0], cell_ext[c, 1] = extrema(
+            x[sj], v0[c], xn[sj], xn[nd + sj], dt, cell_ext[c, 0], cell_ext[c, 1]
+        )
+
+
 @njit(**ms.KERNEL_JIT)
 def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh,
                              n_coarse, n_sub, gamma_r, f_scale, Phi_c, E_c, Phi_f, E_f, B_f,
                              Gf, coupled, psi_c, psi_f, psib_f, gl_c, gl_f, glb_f, W, d,
-                             MinvX_sN, g1, g2, margin, adaptive, contact, lam1, lam2, c1, c2,
-                             P, P0, glb0, use_lemke, lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand,
-                             lcp_B, lcp_xb, lcp_z, lin_L, lin_xp, lin_amp, lin_gate, div_limit,
-                             tol, xn):  # fmt: skip
+                             MinvX_s, g1, g2, margin, adaptive, contact, lam1, lam2, c1, c2,
+                             P, P0, glb0, cell_ext, xv, use_lemke, lcp_M, lcp_q, lcp_T,
+                             lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z, lin_L, lin_xp, lin_amp,
+                             lin_gate, div_limit, tol, xn):  # fmt: skip
     """Advance up to ``n_periods`` periods of the chain; returns (periods done, END code,
     period found). ``W`` (N, b): cell j's tip row on its own block of b = n + 1 coordinates;
     ``B_f`` (N, nx): the fine step's propagated unit impulse at cell j's stops; ``contact`` (N)
-    holds each cell's contact episode between batches."""
+    holds each cell's contact episode between batches; ``cell_ext`` (N × 2, or empty: off)
+    accumulates each cell's outer-mass extrema, min and max, as the period rows do for the last
+    cell (``ChainSteppingRun.cell_ranges``)."""
     nx = x.shape[0]
     nd = nx // 2
     ncell = W.shape[0]
@@ -186,6 +199,7 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
     n = b - 1
     sN = nd - 1  # the last cell's outer mass
     oN = nd - b  # the last cell's block
+    track = cell_ext.shape[0] > 0
     T = 2.0 * math.pi / gamma_r
     dtc = T / n_coarse
     dtf = dtc / n_sub
@@ -237,6 +251,10 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
                         b0, b1 = _portrait(gl_c, glb0, P0, x, cf, sf, dtc, nx, ncell)
                         vv += b0
                         vb += b1
+                    if track:
+                        for c in range(ncell):
+                            xv[c] = x[nd + (c + 1) * b - 1]
+                        _track(cell_ext, x, xv, xn, nd, b, ncell, dtc)
                     s0 = x[sN]
                     v0 = x[nd + sN]
                     for i in range(nx):
@@ -287,7 +305,7 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
                             xn[i] += B_f[c, i] * Pc
                 # Moreau: the step's trajectory starts after the impulse (only the last cell's
                 # own impulse moves s_N's velocity: M is block-diagonal)
-                v0 += MinvX_sN * P[ncell - 1]
+                v0 += MinvX_s[ncell - 1] * P[ncell - 1]
                 if measure:
                     a0, a1, a2, a3 = _harmonics(psi_f, psib_f, P, x, cf, sf, cph, -sph, nx,
                                                 ncell)  # fmt: skip
@@ -298,6 +316,11 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
                     b0, b1 = _portrait(gl_f, glb_f, P, x, cf, sf, dtf, nx, ncell)
                     vv += b0
                     vb += b1
+                if track:
+                    # each cell's velocity after its own impulse (Moreau), as v0 for s_N
+                    for c in range(ncell):
+                        xv[c] = x[nd + (c + 1) * b - 1] + MinvX_s[c] * P[c]
+                    _track(cell_ext, x, xv, xn, nd, b, ncell, dtf)
                 for i in range(nx):
                     x[i] = xn[i]
                 nsteps += 1.0
@@ -446,15 +469,17 @@ class ChainExponentialRun(ChainSteppingRun):
         W, MinvX, g1, g2 = cell_blocks(cs)
         c = np.ascontiguousarray
         self.contact = np.zeros(N)
+        self.cell_ext = np.zeros((0, 2))  # off until ``cell_ranges`` turns it on
         self.Gf = Gf
         self.coupled = coupled
         self.arrays = (
             n_coarse, n_sub, gamma_r, self.f_scale, c(Pc[:nx, :nx]), c(Pc[:nx, nx:]),
             c(Pf[:nx, :nx]), c(Pf[:nx, nx:]), c(B_f.T), c(Gf), coupled, psi_c, psi_f,
             c(psi_f[:, :nx] @ bvec), gl_c, gl_f, c(gl_f[:, :, :nx] @ bvec), W, cs.cells[-1].d,
-            float(MinvX[N - 1, -1]), g1, g2, settings.near_margin, settings.adaptive,
-            self.contact, np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N),
-            np.zeros(N), np.zeros((4, 2, N)), settings.lcp == "lemke", lcp_matrix(Gf),
+            c(MinvX[:, -1]), g1, g2, settings.near_margin, settings.adaptive, self.contact,
+            np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N),
+            np.zeros((4, 2, N)), self.cell_ext, np.zeros(N), settings.lcp == "lemke",
+            lcp_matrix(Gf),
             np.zeros(2 * N), *lemke_workspace(2 * N),
         )  # fmt: skip
         self._W, self._g1, self._g2 = W, g1, g2

@@ -11,6 +11,7 @@ from worker.checks import check_fields, integer
 from worker.limits import POINT_STEPS, POINT_STEPS_MAX, POINT_WALL_S, POINT_WALL_S_MAX
 
 __all__ = [
+    "CHAIN_FIELDS",
     "DEFAULT_METHOD",
     "LCP_SOLVERS",
     "MAX_EVENTS_PER_PERIOD",
@@ -184,6 +185,8 @@ class SolverSettings:
 
 # PointResult fields kept out of records (arrays: records stay JSON-able and column-able)
 _NOT_IN_RECORD = ("history", "final_state")
+#: A chain's fields of a result (absent from a unit cell's record).
+CHAIN_FIELDS = ("cells", "cell_transmittance_db", "cell_transmittance_linear_db")
 
 
 @dataclass
@@ -209,6 +212,13 @@ class PointResult:
     not a settled value. ``impacting_periods`` is how long that motion has lasted: the periods
     of the main trajectory from the point's start to the claim, with impacts in the last quarter
     of its final window (``None`` where the flag is not set).
+
+    A chain of N > 1 cells (``worker.simulate.simulate_chain_point``) adds ``cells`` (N),
+    ``cell_transmittance_linear_db`` (Γ_j,lin of every cell, cell 1 first) and
+    ``cell_transmittance_db`` (Γ_j measured at every cell: exact over the orbit of a
+    ``periodic`` point, the closed form at a ``linear`` one; ``None`` for irregular, unsettled
+    and failed points, whose per-cell values are not proven). The unit cell leaves them
+    ``None`` and its record without them.
 
     ``final_state`` is ``[u; q]`` at a period boundary (forcing phase 0) of the reported
     response, what a sweep line hands to its next point: the orbit's start (``periodic``), the
@@ -239,6 +249,9 @@ class PointResult:
     impact_effect_db: float | None = None
     may_be_transient: bool = False
     impacting_periods: int | None = None
+    cells: int | None = None
+    cell_transmittance_db: list[float] | None = None
+    cell_transmittance_linear_db: list[float | None] | None = None
     history: dict[str, np.ndarray] | None = field(default=None, repr=False)
     final_state: np.ndarray | None = field(default=None, repr=False)
 
@@ -256,6 +269,9 @@ class PointResult:
         """JSON-ready dict (no history, no final state); ``failed`` is included for the
         record's readers."""
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in _NOT_IN_RECORD}
+        if self.cells is None:
+            for name in CHAIN_FIELDS:
+                del out[name]  # a unit cell's record is what it always was
         if self.impacts_per_period is not None:
             out["impacts_per_period"] = list(self.impacts_per_period)
         out["failed"] = self.failed

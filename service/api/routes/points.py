@@ -19,6 +19,7 @@ from service.api.routes.results import NETCDF, RESULT_ERRORS
 from service.studies.chunks import is_study_id
 from service.studies.dataset import json_text, write_netcdf
 from service.studies.variables import OUTCOMES
+from worker.model.chain import MAX_CELLS
 from worker.simulate import SOLVER_VERSION
 
 router = APIRouter(prefix="/points", tags=["points"])
@@ -31,6 +32,9 @@ class _Common(BaseModel):
     coupling: Literal["paper", "full"] | None = Field(None, description="coupling model")
     method: str | None = Field(None, max_length=16, description="solver method")
     outcome: Literal[OUTCOMES] | None = Field(None, description="how the point ended")  # type: ignore[valid-type]
+    cells: int | None = Field(
+        None, ge=1, le=MAX_CELLS, description="chains of N cells only (1: the unit cell)"
+    )
     version: str = Field(
         SOLVER_VERSION, max_length=16,
         description="solver version of the points (default: this service's); 'all' for every one",
@@ -79,7 +83,8 @@ def _query(p: BaseModel) -> PointQuery:
         raise HTTPException(422, f"study must be a study id (a hex digest), got {p.study!r}")
     return PointQuery(
         values=values, ranges=ranges, modes=p.modes, coupling=p.coupling, method=p.method,
-        outcome=p.outcome, version=p.version, study=p.study, after=p.after, limit=p.limit,
+        outcome=p.outcome, cells=p.cells, version=p.version, study=p.study, after=p.after,
+        limit=p.limit,
     )  # fmt: skip
 
 

@@ -94,3 +94,22 @@ def test_bad_chain_input_is_a_usage_error_naming_the_option(args: list[str], exp
 def test_a_bad_number_of_cells_is_a_usage_error(cells: str, expected: str) -> None:
     out = run("point", "--cells", cells)
     assert out.returncode == 2 and expected in one_error_line(out.stderr)
+
+
+def test_a_chain_spectrum_is_its_points() -> None:
+    args = ("--cells", "2", "--gap", "0.1", "--modes", "2", "--json")
+    out = run("spectrum", "--gamma-r-start", "1.5", "--gamma-r-stop", "2.5", "--num", "2", *args)
+    assert out.returncode == 0, out.stderr
+    rows = json.loads(out.stdout)
+    assert [r["gamma_r"] for r in rows] == [1.5, 2.5]
+    assert "method: euler" in out.stderr
+    for r in rows:
+        one = run("point", "--gamma-r", str(r["gamma_r"]), *args)
+        assert one.returncode == 0, one.stderr
+        d = json.loads(one.stdout)
+        assert r["cells"] == d["cells"] == 2
+        for k in ("transmittance_db", "outcome", "cell_transmittance_db",
+                  "cell_transmittance_linear_db"):  # fmt: skip
+            assert r[k] == d[k]
+    bad = run("spectrum", "--cells", "2", "--gaps", "0.1", "--num", "2")
+    assert bad.returncode == 2 and "--gaps" in one_error_line(bad.stderr)

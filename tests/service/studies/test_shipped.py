@@ -23,8 +23,9 @@ from service.studies.shipped import (
 from tests.service.helpers import tiny_study
 
 ROOT = Path(__file__).resolve().parents[3]
-SHIPPED = ("demo-fig5", "experiment-table1", "hysteresis-frequency-sweep",
-           "hysteresis-gap-sweep", "paper-fig5-gaps", "paper-fig5-second-band",
+SHIPPED = ("chain-cells", "chain-graded", "chain-uniform-gaps", "demo-fig5",
+           "experiment-table1", "hysteresis-frequency-sweep", "hysteresis-gap-sweep",
+           "paper-fig5-gaps", "paper-fig5-second-band",
            "paper-fig5-theta1", "paper-fig6-effective-mass", "paper-fig6-theta-sweep",
            "quick")  # fmt: skip
 

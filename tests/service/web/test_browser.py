@@ -38,6 +38,14 @@ def _expect_text(page: Any, selector: str, pattern: str, timeout: float = 60_000
     page.wait_for_function(_HAS_TEXT, arg=[selector, pattern], timeout=timeout)
 
 
+def _expect_label(page: Any, selector: str, label: str, timeout: float = 60_000) -> None:
+    """Wait until the element's ``aria-label`` (a chart's title) is ``label``."""
+    page.wait_for_function(
+        "([s, t]) => document.querySelector(s)?.getAttribute('aria-label') === t",
+        arg=[selector, label], timeout=timeout,
+    )  # fmt: skip
+
+
 def _expect_count(page: Any, selector: str, n: int, timeout: float = 60_000) -> None:
     """Wait until exactly ``n`` elements match: the curves are drawn after their slices are
     fetched, which may be after the map is drawn."""
@@ -197,6 +205,26 @@ def test_an_adaptive_study_page_draws_its_samples_and_located_edges(
     # each line's curve runs through its own samples: one unbroken path (a single move-to)
     d = page.locator("#curve-chart svg path[data-series]").first.get_attribute("d")
     assert d.count("M") == 1
+    assert page.console_errors == []
+
+
+def test_a_chain_study_page_draws_every_cells_transmittance(page: Any, server: Server) -> None:
+    from tests.service.studies.test_chain_studies import chain_study
+
+    with Client(server.url) as c:
+        rec = c.wait(c.submit(chain_study())["id"], progress=False, timeout=180, poll=0.2)
+    page.goto(f"{server.url}/#/studies/{rec['id']}")
+    page.locator('#map-chart svg[data-chart="map"]').wait_for()
+    # cells N is the map's y: a Γ_j and a Γ_j,lin curve per N, over the cells j = 1, 2
+    _expect_count(page, "#cell-chart svg path[data-series]", 4)
+    _expect_label(page, "#cell-chart svg", "Γ_j along the chain at γ_r = 1.6")
+    series = page.locator("#cell-chart svg path[data-series]").evaluate_all(
+        "ps => ps.map(p => p.getAttribute('data-series'))"
+    )
+    assert {"cells N = 1", "cells N = 2", "cells N = 2 (Γ_j,lin)"} <= set(series)
+    page.select_option("#cell-at", "2.5")
+    _expect_label(page, "#cell-chart svg", "Γ_j along the chain at γ_r = 2.5")
+    assert page.locator("#cell-at-label").inner_text() == "at γ_r ="
     assert page.console_errors == []
 
 

@@ -15,7 +15,7 @@
   const C = window.ImpactCharts;
   const fmt = C.fmt;
   // Axis and variable names as the paper writes them (service.studies.variables has the rest).
-  const SYMBOLS = { gamma_r: "γ_r", gap: "gap g̃", g1: "g1", g2: "g2", theta: "θ", sigma: "σ",
+  const SYMBOLS = { cells: "cells N", gamma_r: "γ_r", gap: "gap g̃", g1: "g1", g2: "g2", theta: "θ", sigma: "σ",
     gamma_s: "γ_s", xi: "ξ", frequency_hz: "f (Hz)", initial: "initial state", direction: "direction",
     gap_m: "gap", gap1_m: "gap 1", gap2_m: "gap 2", length_m: "length", width_m: "width", thickness_m: "thickness",
     density_kg_m3: "density", youngs_modulus_pa: "E", outer_mass_kg: "outer mass", spring_n_m: "spring stiffness",
@@ -557,6 +557,19 @@
             h("div", { class: "panel-head" }, h("h3", { id: "mass-title", text: "Effective mass" }),
               h("label", { for: "mass-variable", text: "Variable" }), varSelect("mass-variable", MASS_VARIABLES, "massVar")),
             massBox))));
+    // A chain study (docs/chains.md): Γ_j along the chain at one value of the x axis.
+    const def = rec().definition || {};
+    const chain = Boolean((def.model && def.model.cells > 1) || (def.grid && def.grid.cells !== undefined));
+    const cellBox = h("div", { class: "chart", id: "cell-chart" });
+    const cellAt = h("select", { id: "cell-at" });
+    if (chain) {
+      cellAt.addEventListener("change", () => { state.cellAt = cellAt.value; redraw(); });
+      section.append(h("section", { class: "chart-panel", "aria-labelledby": "cell-title" },
+        h("div", { class: "panel-head" }, h("h3", { id: "cell-title", text: "Along the chain" }),
+          h("label", { for: "cell-at", id: "cell-at-label", text: "at" }), cellAt),
+        cellBox,
+        h("p", { class: "muted", text: "Γ_j at every cell j (proven points only: periodic and linear); Γ_j,lin of the chain without stops dashed." })));
+    }
 
     function buildControls() {
       const fields = [];
@@ -694,6 +707,31 @@
           x: { label: label(state.x), values: axes[state.x].map((v) => shown(state.x, v)) }, series: seriesOf(mass, outcome), yLabel: Y_LABELS[state.massVar], refLine: 0 });
       }
     }
+    /** Γ_j over the cells of the chain at one value of the x axis (a chain study only). */
+    async function drawCells(outcomes) {
+      if (!chain) return;
+      const xs = axes[state.x];
+      if (state.cellAt === undefined || !xs.map(String).includes(String(state.cellAt))) state.cellAt = xs[Math.floor(xs.length / 2)];
+      cellAt.replaceChildren(...xs.map((v) => h("option", { value: String(v), text: valueText(state.x, v), selected: String(v) === String(state.cellAt) })));
+      document.getElementById("cell-at-label").textContent = `at ${sym(state.x)} =`;
+      const p = Object.assign({ nearest: "true" }, fixedParams(), { [state.x]: state.cellAt });
+      const [s, lin] = await Promise.all([
+        getJSON(`studies/${id}/data${query(Object.assign({ variable: "cell_transmittance_db" }, p))}`),
+        getJSON(`studies/${id}/data${query(Object.assign({ variable: "cell_transmittance_linear_db" }, p))}`),
+        outcomes,
+      ]);
+      const ys = state.y ? axes[state.y] : [null];
+      const rows = grid2d(s, "cell", state.y);
+      const linRows = grid2d(lin, "cell", state.y);
+      const series = [];
+      rows.forEach((row, j) => {
+        const name = state.y ? `${sym(state.y)} = ${valueText(state.y, ys[j])}` : "Γ_j";
+        series.push({ label: name, values: row, color: C_COLOR(j) });
+        series.push({ label: `${name} (Γ_j,lin)`, values: linRows[j], color: C_COLOR(j), dashed: true });
+      });
+      C.lineChart(cellBox, { kind: "cells", title: `Γ_j along the chain at ${sym(state.x)} = ${valueText(state.x, state.cellAt)}`,
+        x: { label: "cell j", values: s.coords.cell }, series, yLabel: "Γ_j (dB)", refLine: 0 });
+    }
     const PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22"];
     function C_COLOR(j) { return PALETTE[j % PALETTE.length]; }
 
@@ -703,7 +741,7 @@
       msg.textContent = "Drawing…";
       const outcomes = outcomeGrid();
       const shown = current();
-      drawing = Promise.all([drawMap(outcomes), drawCurves(outcomes)]).then(() => {
+      drawing = Promise.all([drawMap(outcomes), drawCurves(outcomes), drawCells(outcomes)]).then(() => {
         msg.textContent = shown.status !== "finished"
           ? `Partial results: the ${shown.points_done.toLocaleString()} of ${shown.points_total.toLocaleString()} points finished when drawn (redrawn as more finish).` : "";
       }).catch((e) => { msg.textContent = `Could not draw: ${e.message}`; })
