@@ -145,3 +145,35 @@ def test_a_chain_study_runs_into_a_cell_dimension(tmp_path: Path) -> None:
     unit = run(d, data_dir=tmp_path, serial=True)
     for name in ("transmittance_db", "outcome", "periods", "transmittance_linear_db"):
         np.testing.assert_array_equal(one[name].values, unit[name].values)
+
+
+@pytest.mark.slow  # runs a small study into a point store
+def test_the_point_store_keeps_n_and_a_rerun_reuses_every_point(
+    catalogue_url: str, tmp_path: Path
+) -> None:
+    from service.api.catalogue import Catalogue
+    from service.api.points import PointQuery, SqlPointStore, points_csv, points_dataset
+    from service.studies.runner import run_study
+
+    cat = Catalogue(catalogue_url)
+    try:
+        store = SqlPointStore(cat.engine)
+        s = parse_study(chain_study())
+        first = run_study(s, tmp_path / "a", serial=True, points=store)
+        again = run_study(s, tmp_path / "b", serial=True, points=store)
+        assert first.computed == 6 and again.computed == 0  # every point from the store
+        chains, _ = store.query(PointQuery(cells=2))
+        units, _ = store.query(PointQuery(cells=1))
+        assert len(chains) == len(units) == 3
+        assert {r["cells"] for r in chains} == {2} and {r["cells"] for r in units} == {1}
+        assert all(len(r["cell_transmittance_linear_db"]) == 2 for r in chains)
+        assert "cell_transmittance_db" not in units[0]
+        assert (
+            points_csv(chains)
+            .splitlines()[0]
+            .split(",")[: len(("key", "version", "method", "start")) + 11][-1]
+            == "cells"
+        )
+        assert sorted(points_dataset(chains + units)["cells"].values.tolist()) == [1] * 3 + [2] * 3
+    finally:
+        cat.close()
