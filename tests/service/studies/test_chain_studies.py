@@ -177,3 +177,16 @@ def test_the_point_store_keeps_n_and_a_rerun_reuses_every_point(
         assert sorted(points_dataset(chains + units)["cells"].values.tolist()) == [1] * 3 + [2] * 3
     finally:
         cat.close()
+
+
+def test_a_chain_study_takes_either_chain_method(tmp_path: Path) -> None:
+    d = chain_study()
+    d["solver"]["method"] = "exponential"
+    assert parse_study(d).solver.method == "exponential"
+    d["grid"]["cells"] = [2]
+    d["grid"]["gamma_r"] = [2.5]
+    ds = run(d, data_dir=tmp_path, serial=True)
+    cp = ChainParams(CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=2.5, xi=0.05,
+                                g1=0.1, g2=0.1, modes=2), 2)  # fmt: skip
+    r = simulate_chain_point(cp, SolverSettings(method="exponential", max_periods=400))
+    assert float(ds["transmittance_db"].squeeze()) == r.transmittance_db
