@@ -54,13 +54,15 @@ PROOF_MAX_ENTRIES = 4_000_000
 
 @njit(**ms.KERNEL_JIT)
 def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, spp,
-                       gamma_r, f_scale, MinvC, MinvK, Minv_es, MinvX, f_sin, f_cos, W, d, G,
+                       gamma_r, f_scale, Cv, Kv, col, ptr, Minv_es, MinvX, f_sin, f_cos, W, d, G,
                        g1, g2, contact, lam1, lam2, cell_ext, use_lemke, lcp_M, lcp_q, lcp_T,
                        lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z, lin_L, lin_xp, lin_amp,
                        lin_gate, div_limit, tol, xn):  # fmt: skip
     """Advance up to ``n_periods`` periods of the chain; returns (periods done, END code,
     period found). ``W``, ``MinvX`` are (N, b): cell j's rows on its own block of b = n + 1
-    coordinates; ``contact`` (N) holds each cell's contact episode between batches;
+    coordinates; ``Cv``, ``Kv``, ``col``, ``ptr`` hold M⁻¹C and M⁻¹K by rows, their nonzero
+    columns only (``sparse_rows``); ``contact`` (N) holds each cell's contact episode between
+    batches;
     ``cell_ext`` (N × 2, or empty: off) accumulates each cell's outer-mass extrema, min and max,
     as the period rows do for the last cell."""
     nx = x.shape[0]
@@ -100,8 +102,9 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
             fval = f_scale * (f_sin * sph + f_cos * cph)
             for i in range(nd):
                 acc = Minv_es[i] * fval
-                for j in range(nd):
-                    acc -= MinvC[i, j] * x[nd + j] + MinvK[i, j] * x[j]
+                for t in range(ptr[i], ptr[i + 1]):  # the dense row's terms, zeros skipped
+                    j = col[t]
+                    acc -= Cv[t] * x[nd + j] + Kv[t] * x[j]
                 xn[nd + i] = x[nd + i] + dt * acc
             for c in range(ncell):
                 off = c * b
@@ -189,6 +192,20 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
         if code != ms.END_NONE:
             return k + 1, code, p
     return n_periods, ms.END_NONE, 0
+
+
+def sparse_rows(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``A`` and ``B`` (square, the same shape) by rows, the columns where either is nonzero
+    in ascending order: ``(A values, B values, columns, row starts)``. M is block-diagonal and
+    the cells are tied at their outer masses only, so a row of M⁻¹C or M⁻¹K has its own
+    cell's b columns and its neighbours' outer masses: a step costs O(N b²), not O(N² b²).
+    Skipping exact zeros leaves every sum as the dense row's (in the same order)."""
+    keep = (A != 0.0) | (B != 0.0)
+    rows, cols = np.nonzero(keep)  # row-major: columns ascending within a row
+    ptr = np.zeros(A.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=A.shape[0]), out=ptr[1:])
+    return (np.ascontiguousarray(A[rows, cols]), np.ascontiguousarray(B[rows, cols]),
+            cols.astype(np.int64), ptr)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- linear tail
@@ -442,7 +459,7 @@ class ChainEulerRun(ChainSteppingRun):
         self.contact = np.zeros(N)
         self.cell_ext = np.zeros((0, 2))  # off until ``cell_ranges`` turns it on
         self.arrays = (
-            self.spp, p.cell.gamma_r, self.f_scale, c(cs.Minv @ cs.C), c(cs.Minv @ cs.K),
+            self.spp, p.cell.gamma_r, self.f_scale, *sparse_rows(cs.Minv @ cs.C, cs.Minv @ cs.K),
             c(cs.Minv[:, cs.s_index[0]]), MinvX, cs.f_sin, cs.f_cos, W, cs.cells[-1].d, G, g1,
             g2, self.contact, np.zeros(N), np.zeros(N), self.cell_ext, settings.lcp == "lemke",
             np.zeros((2 * N, 2 * N)), np.zeros(2 * N), *lemke_workspace(2 * N),
