@@ -200,12 +200,13 @@ def spec_model(
 # --------------------------------------------------------------------------- the blocks
 
 #: The longest chain a study may ask for (``model.cells``, ``grid.cells``): a point's cost
-#: grows about as N² (docs/chains.md), and a 100-cell point takes seconds to minutes.
+#: grows with N (docs/chains.md), and a 100-cell point takes seconds to minutes.
 STUDY_MAX_CELLS = 100
 #: ``cells``' metadata, as a CellParams field's (bounds, why): the chain's length N.
 CELLS_META: dict[str, Any] = {
     "ge": 1, "le": STUDY_MAX_CELLS, "integer": True,
-    "why": "cells in series (1: the unit cell); a point's cost grows about as N²",
+    "why": "cells in series (1: the unit cell); a point costs about N (euler) to N² "
+    "(exponential) times a cell's",
 }  # fmt: skip
 
 
