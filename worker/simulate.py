@@ -80,7 +80,20 @@ __all__ = [
     "warm_up",
 ]
 
-POINT_KEYS = ("theta", "sigma", "gamma_s", "gamma_r", "xi", "g1", "g2", "modes", "coupling", "xi_b")
+POINT_KEYS = (
+    "theta",
+    "sigma",
+    "gamma_s",
+    "gamma_r",
+    "xi",
+    "g1",
+    "g2",
+    "modes",
+    "coupling",
+    "xi_b",
+    "e1",
+    "e2",
+)
 #: A chain point's keys besides ``POINT_KEYS`` (``chain_of``): N and the graded lists.
 CHAIN_POINT_KEYS = ("cells", "cell_sigma", "cell_g1", "cell_g2")
 
@@ -219,6 +232,12 @@ def simulate_chain_point(
         raise ValueError(
             f"method {settings.method!r} does not run chains of n_cells > 1 yet; for chains "
             f"method must be one of {', '.join(CHAIN_METHODS)}"
+        )
+    elastic = [j + 1 for j, c in enumerate(chain.cells) if c.elastic]
+    if elastic:
+        raise ValueError(
+            f"cells {elastic} have e1 or e2 > 0: chains of n_cells > 1 run plastic impacts "
+            "only (e1 = e2 = 0)"
         )
     history_periods = int_in("history_periods", history_periods, 0, 100_000)
     cs = assemble_chain(chain)

@@ -162,6 +162,8 @@ class PointRow(_Base):
     xi_b: Mapped[float | None] = mapped_column(Float)
     g1: Mapped[float] = mapped_column(Float)
     g2: Mapped[float] = mapped_column(Float)
+    e1: Mapped[float | None] = mapped_column(Float)  # NULL: stored before restitution (0)
+    e2: Mapped[float | None] = mapped_column(Float)
     cells: Mapped[int | None] = mapped_column(Integer)  # a chain's N; NULL: the unit cell
     outcome: Mapped[str] = mapped_column(String(16))
     transmittance_db: Mapped[float | None] = mapped_column(Float)

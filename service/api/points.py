@@ -349,6 +349,9 @@ def _record_json(record: Mapping[str, Any]) -> str:
 def _row_dict(m: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {c: m[c] for c in (*_ID_COLUMNS, *PARAM_COLUMNS)}
     out["cells"] = m["cells"] or 1  # a chain's N; 1: the unit cell
+    for e in ("e1", "e2"):
+        if out[e] is None:  # stored before restitution: a plastic impact
+            out[e] = 0.0
     for k, v in with_transient_flag(json.loads(m["record"])).items():
         if k not in out:
             out[k] = v

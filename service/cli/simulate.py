@@ -32,6 +32,8 @@ FIELD_FLAGS: dict[str, str] = {
     "xi_b": "--xi-b",
     "g1": "--g1",
     "g2": "--g2",
+    "e1": "--e1",
+    "e2": "--e2",
     "modes": "--modes",
     "coupling": "--coupling",
     "method": "--method",
@@ -49,6 +51,11 @@ def _cell_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gap", type=float, default=0.1, help="both clearances g̃1 = g̃2")
     p.add_argument("--g1", type=float, default=None, help="clearance to stop 1 (default: --gap)")
     p.add_argument("--g2", type=float, default=None, help="clearance to stop 2 (default: --gap)")
+    p.add_argument("--restitution", type=float, default=0.0,
+                   help="coefficient of restitution e at both stops, 0 (plastic, the paper's) "
+                   "to 1; e > 0 needs --method euler or exponential")  # fmt: skip
+    p.add_argument("--e1", type=float, default=None, help="e at stop 1 (default: --restitution)")
+    p.add_argument("--e2", type=float, default=None, help="e at stop 2 (default: --restitution)")
     p.add_argument("--modes", type=int, default=5, help="number of beam modes, 1…30")
     p.add_argument("--coupling", default="paper", help="paper (Eq. 29) or full")
     p.add_argument(
@@ -70,6 +77,9 @@ def _flags(args: argparse.Namespace, **override: str) -> dict[str, str]:
     for g in ("g1", "g2"):
         if getattr(args, g) is None:
             names[g] = "--gap"
+    for e in ("e1", "e2"):
+        if getattr(args, e) is None:
+            names[e] = "--restitution"
     return {**names, **override}
 
 
@@ -98,9 +108,11 @@ def _params(args: argparse.Namespace, gamma_r: float) -> Any:
 
     g1 = args.gap if args.g1 is None else args.g1
     g2 = args.gap if args.g2 is None else args.g2
+    e1 = args.restitution if args.e1 is None else args.e1
+    e2 = args.restitution if args.e2 is None else args.e2
     return CellParams(
         theta=args.theta, sigma=args.sigma, gamma_s=args.gamma_s, gamma_r=gamma_r, xi=args.xi,
-        g1=g1, g2=g2, modes=args.modes, coupling=args.coupling, xi_b=args.xi_b,
+        g1=g1, g2=g2, modes=args.modes, coupling=args.coupling, xi_b=args.xi_b, e1=e1, e2=e2,
     )  # fmt: skip
 
 

@@ -89,6 +89,9 @@ def cell_of(point: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+#: Cell parameters added after the store's first points, left out of a key while they are at
+#: their default (plastic impacts), so that every key stored before stays the same point's.
+_LATER_PARAMS = ("e1", "e2")
 #: Solver settings added after the store's first points, left out of a document while they
 #: are at their default, so that every key stored before stays the key of the same settings.
 _LATER_SETTINGS = ("max_events_per_period", "transient_guard")
@@ -153,6 +156,9 @@ def _key(point: Mapping[str, Any], solver_json: str, after: str | None, version:
     The hashed text is the sorted, compact JSON of ``{cell, solver, start, version}``."""
     try:
         cell: Any = cell_of(point)
+        for k in _LATER_PARAMS:  # at its default: the key every point had before it
+            if cell[k] == _DEFAULTS[k]:
+                del cell[k]
     except (KeyError, TypeError, ValueError):
         cell = {k: point[k] for k in sorted(point) if k != "initial"}  # not a cell: as given
     start: Any = {"after": after} if after is not None else (point.get("initial") or "rest")

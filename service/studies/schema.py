@@ -394,6 +394,9 @@ class Study(StrictModel):
         if "gap" in row:
             g = row.pop("gap")
             row["g1"] = row["g2"] = g
+        if "restitution" in row:
+            e = row.pop("restitution")
+            row["e1"] = row["e2"] = e
         row.setdefault("xi", m.xi)
         if m.gaps is not None:
             row["g1"] = row["g2"] = float(m.gaps[0])
@@ -465,7 +468,7 @@ class Study(StrictModel):
             out += _sweep_problems(self.sweep, self.grid)
         if self.adaptive is not None:
             out += _adaptive_problems(self)
-        return _chain_problems(self, out, max_points)
+        return _chain_problems(self, out, max_points) + _restitution_problems(self)
 
     def _lead_sizes(self) -> dict[str, int]:
         """Sizes of the dimensions before the grid's (initial states, directions)."""
@@ -475,6 +478,21 @@ class Study(StrictModel):
         if self.sweep is not None and self.n_directions > 1:
             lead["direction"] = self.n_directions
         return lead
+
+
+def _restitution_problems(study: Study) -> list[tuple[str, str]]:
+    """Rebounding stops (an e axis above 0) need a method that honours them, and one cell."""
+    given = study.grid.given()
+    axes = [a for a in ("restitution", "e1", "e2") if a in given]
+    if not axes or max(_ends(given[a])[1] for a in axes) <= 0.0:
+        return []
+    out = []
+    if study.solver.method == "event":
+        out.append((f"grid.{axes[0]}", "a coefficient of restitution > 0 needs solver.method "
+                    "euler or exponential (method event runs plastic impacts only)"))  # fmt: skip
+    if study.max_cells() > 1:
+        out.append((f"grid.{axes[0]}", "chains of N > 1 cells run plastic impacts only (e = 0)"))
+    return out
 
 
 #: What a chain's per-cell lists replace on the grid.
@@ -597,6 +615,9 @@ def _presence_problems(given: set[str]) -> list[tuple[str, str]]:
     for k in ("gamma_r", "theta", "sigma", "gamma_s"):
         if k not in given:
             out.append((f"grid.{k}", "is required (a number, a list or a range)"))
+    if "restitution" in given and ("e1" in given or "e2" in given):
+        out.append(("grid.restitution", "give either restitution (both stops) or e1 and e2, "
+                    "not both"))  # fmt: skip
     if "gap" in given and ("g1" in given or "g2" in given):
         out.append(("grid.gap", "give either gap (both stops) or g1 and g2, not both"))
     elif "gap" not in given and ("g1" in given) != ("g2" in given):

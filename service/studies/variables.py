@@ -62,7 +62,8 @@ __all__ = [
 # The axes are CellParams' real-valued parameters (not the optional xi_b) plus ``cells`` (a
 # chain's length) and ``gap`` (both stops at once): the chain first, the stops, then the
 # parameters in CellParams' order.
-AXIS_PARAMETER: dict[str, str] = {"gap": "g1"}  # an axis that is not a parameter -> the rule
+# an axis that is not a parameter -> the rule it follows
+AXIS_PARAMETER: dict[str, str] = {"gap": "g1", "restitution": "e1"}
 _CELL_AXES = tuple(
     f.name
     for f in dataclasses.fields(CellParams)
@@ -73,7 +74,10 @@ MODEL_AXES: tuple[str, ...] = (
     "gap",
     "g1",
     "g2",
-    *(a for a in _CELL_AXES if a not in ("g1", "g2", "gamma_r")),
+    "restitution",  # both stops' e at once, as gap sets both clearances
+    "e1",
+    "e2",
+    *(a for a in _CELL_AXES if a not in ("g1", "g2", "e1", "e2", "gamma_r")),
     "gamma_r",
 )
 # The SI fields are PhysicalCell's own, so the study schema cannot drift from the cell.
@@ -101,6 +105,10 @@ AXES: dict[str, AxisInfo] = {
     "gap": AxisInfo("1", "clearance to both stops g1 = g2, in units of B", "g̃", "g̃₁ = g̃₂"),
     "g1": AxisInfo("1", "clearance to stop 1, in units of B", "g̃₁"),
     "g2": AxisInfo("1", "clearance to stop 2, in units of B", "g̃₂"),
+    "restitution": AxisInfo("1", "coefficient of restitution at both stops e1 = e2 (Newton)",
+                            "e", "e₁ = e₂"),
+    "e1": AxisInfo("1", "coefficient of restitution at stop 1 (Newton)", "e₁"),
+    "e2": AxisInfo("1", "coefficient of restitution at stop 2 (Newton)", "e₂"),
     "theta": AxisInfo("1", "mass ratio theta = rho A l / m_o", "θ"),
     "sigma": AxisInfo("1", "beam stiffness parameter sigma = EI / (rho A l^4 omega_b^2)", "σ"),
     "gamma_s": AxisInfo("1", "inverse mass frequency gamma_s = omega_b / omega_m", "γ_s",

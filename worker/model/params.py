@@ -72,6 +72,15 @@ _GAP = _bounds(
     ),
     zero=True,
 )
+_RESTITUTION = _bounds(
+    0.0,
+    1.0,
+    (
+        "Newton's coefficient of restitution at the stop: 0, the plastic impact of the paper "
+        "(the tip meets the stop and stays with it), to 1, an elastic one"
+    ),
+    zero=True,
+)
 _MODES = {
     "integer": True,
     "ge": 1,
@@ -105,6 +114,9 @@ class CellParams:
         Eq. 29 as published, or the consistent Lagrangian coupling.
     xi_b : float or None
         Beam Rayleigh damping ratio, in [0, 10]; ``None`` means ``xi``.
+    e1, e2 : float
+        Coefficients of restitution at stop 1 and stop 2 (Newton's impact law), in [0, 1];
+        0 (default) is the paper's plastic impact (docs/model.md §5).
 
     Raises
     ------
@@ -122,9 +134,16 @@ class CellParams:
     modes: int = field(default=5, metadata=_MODES)
     coupling: str = field(default="paper", metadata={"choices": COUPLINGS})
     xi_b: float | None = field(default=None, metadata={**_DAMPING, "optional": True})
+    e1: float = field(default=0.0, metadata=_RESTITUTION)
+    e2: float = field(default=0.0, metadata=_RESTITUTION)
 
     def __post_init__(self) -> None:
         check_fields(self)
+
+    @property
+    def elastic(self) -> bool:
+        """Whether an impact rebounds (e1 or e2 > 0): Newton's law at the velocity level."""
+        return self.e1 > 0.0 or self.e2 > 0.0
 
     @property
     def beam_xi(self) -> float:

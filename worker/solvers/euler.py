@@ -25,16 +25,22 @@ DEFAULT_STEPS = 1024
 @njit(**ms.KERNEL_JIT)
 def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, spp,
                  gamma_r, f_scale, MinvC, MinvK, Minv_es, MinvX, f_sin, f_cos, W, d, G, g1, g2,
-                 use_lemke, lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z,
+                 e1, e2, use_lemke, lcp_M, lcp_q, lcp_T, lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z,
                  lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, xn):  # fmt: skip
-    """Advance up to ``n_periods`` periods; returns (periods done, END code, period found)."""
+    """Advance up to ``n_periods`` periods; returns (periods done, END code, period found).
+
+    With ``e1 = e2 = 0`` the paper's position-level contact: the impulses close each predicted
+    gap. Otherwise Newton's law at the velocity level (Moreau–Jean): a stop whose predicted gap
+    closes takes the impulse that leaves the tip's velocity away from it at least ``e`` times
+    its approach velocity at the step's start (docs/model.md §5)."""
     nx = x.shape[0]
     N = nx // 2
     n = N - 1
     T = 2.0 * math.pi / gamma_r
     dt = T / spp
+    elastic = e1 > 0.0 or e2 > 0.0
+    gdt = G if elastic else G * dt  # the contact gain: on velocities, or on positions
     if use_lemke:
-        gdt = G * dt
         lcp_M[0, 0] = gdt
         lcp_M[0, 1] = -gdt
         lcp_M[1, 0] = -gdt
@@ -64,6 +70,11 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 wpred += W[i] * (x[i] + dt * xn[N + i])
             c1 = g1 - wpred
             c2 = g2 + wpred
+            if elastic:
+                wv0 = ms.dot(W, x[N:], N)  # the tip's velocity before: the approach
+                wvf = ms.dot(W, xn[N:], N)  # and after the free step
+                c1 = -(wvf + e1 * max(wv0, 0.0)) if c1 <= 0.0 else 0.0
+                c2 = (wvf - e2 * max(-wv0, 0.0)) if c2 <= 0.0 else 0.0
             if use_lemke:
                 lcp_q[0] = c1
                 lcp_q[1] = c2
@@ -74,7 +85,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 l1 = lcp_z[0]
                 l2 = lcp_z[1]
             else:
-                l1, l2 = two_stop_impulses(G * dt, c1, c2)
+                l1, l2 = two_stop_impulses(gdt, c1, c2)
             P = l2 - l1
             for i in range(N):
                 xn[N + i] += MinvX[i] * P
@@ -198,7 +209,7 @@ class EulerRun(SteppingRun):
         c = np.ascontiguousarray
         self.arrays = (
             spp, p.gamma_r, self.f_scale, c(Minv @ sys_.C), c(Minv @ sys_.K), c(Minv[:, -1]),
-            c(Minv @ sys_.X), sys_.f_sin, sys_.f_cos, sys_.W, sys_.d, sys_.G, p.g1, p.g2,
-            settings.lcp == "lemke", np.zeros((2, 2)), np.zeros(2), *lemke_workspace(2),
+            c(Minv @ sys_.X), sys_.f_sin, sys_.f_cos, sys_.W, sys_.d, sys_.G, p.g1, p.g2, p.e1,
+            p.e2, settings.lcp == "lemke", np.zeros((2, 2)), np.zeros(2), *lemke_workspace(2),
         )  # fmt: skip
         self.xn = np.zeros(self.nx)

@@ -49,14 +49,22 @@ def _propagate(Phi, E, x, cf, sf, xn, nx):
 @njit(**ms.KERNEL_JIT)
 def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh,
                        n_coarse, n_sub, gamma_r, f_scale, Phi_c, E_c, Phi_f, E_f, b_f, psi_c,
-                       psi_f, psib_f, gl_c, gl_f, glb_f, glb0, W, d, Gf, MinvX_s, g1, g2,
-                       margin, adaptive, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol,
+                       psi_f, psib_f, gl_c, gl_f, glb_f, glb0, W, d, Gf, G, Gv, MinvX_s, g1, g2,
+                       e1, e2, margin, adaptive, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol,
                        xn):  # fmt: skip
-    """Advance up to ``n_periods`` periods; returns (periods done, END code, period found)."""
+    """Advance up to ``n_periods`` periods; returns (periods done, END code, period found).
+
+    With ``e1 = e2 = 0`` a fine step's impulse closes the predicted end gap (plastic); otherwise
+    a stop whose end gap would close takes at the step's start Newton's impulse, which turns
+    the tip's approach velocity v into −e v, or the impulse that stops it approaching at the
+    step's end if that is larger (Newton's law,
+    Moreau–Jean; ``G``: the tip velocity a unit impulse gives at once, ``Gv``: at the step's
+    end)."""
     nx = x.shape[0]
     N = nx // 2
     n = N - 1
     T = 2.0 * math.pi / gamma_r
+    elastic = e1 > 0.0 or e2 > 0.0
     dtc = T / n_coarse
     dtf = dtc / n_sub
     rot_cd = math.cos(gamma_r * dtf)
@@ -127,7 +135,21 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 v0 = x[N + n]
                 _propagate(Phi_f, E_f, x, cf, sf, xn, nx)
                 wend = ms.dot(W, xn, N)
-                l1, l2 = two_stop_impulses(Gf, g1 - wend, g2 + wend)
+                if elastic:
+                    wv0 = 0.0
+                    wvend = 0.0
+                    for i in range(N):
+                        wv0 += W[i] * x[N + i]
+                        wvend += W[i] * xn[N + i]
+                    # Newton's impulse at the step's start, or more where the tip would still
+                    # approach the stop at the step's end (a resting contact)
+                    l1 = l2 = 0.0
+                    if g1 - wend <= 0.0:
+                        l1 = max((1.0 + e1) * max(wv0, 0.0) / G, wvend / Gv, 0.0)
+                    if g2 + wend <= 0.0:
+                        l2 = max((1.0 + e2) * max(-wv0, 0.0) / G, -wvend / Gv, 0.0)
+                else:
+                    l1, l2 = two_stop_impulses(Gf, g1 - wend, g2 + wend)
                 P = l2 - l1
                 if P != 0.0:
                     for i in range(nx):
@@ -214,7 +236,9 @@ class ExponentialRun(SteppingRun):
             Pf = _expm(A_aug * dtf)
             b_f = Pf[:nx, :nx] @ b
             Gf = float(sys_.W @ b_f[: sys_.ndof])
-            if Gf >= MIN_GAIN_RATIO * G * dtf:
+            # the end tip velocity of a unit impulse (Newton's law for e > 0)
+            Gv = float(sys_.W @ b_f[sys_.ndof :])
+            if Gf >= MIN_GAIN_RATIO * G * dtf and (not p.elastic or Gv >= MIN_GAIN_RATIO * G):
                 break
             # The fine step does not resolve the tip's lowest modes: the impulse that closes
             # the gap at the step's end would be mis-sized (or of the wrong sign). Refine.
@@ -238,8 +262,8 @@ class ExponentialRun(SteppingRun):
         self.arrays = (
             n_coarse, n_sub, p.gamma_r, self.f_scale, c(Pc[:nx, :nx]), c(Pc[:nx, nx:]),
             c(Pf[:nx, :nx]), c(Pf[:nx, nx:]), c(b_f), psi_c, psi_f, c(psi_f[:, :nx] @ b),
-            gl_c, gl_f, c(gl_f[:, :, :nx] @ b), np.zeros((4, 2)), sys_.W, sys_.d, Gf,
-            float((sys_.Minv @ sys_.X)[-1]), p.g1, p.g2, settings.near_margin,
+            gl_c, gl_f, c(gl_f[:, :, :nx] @ b), np.zeros((4, 2)), sys_.W, sys_.d, Gf, G, Gv,
+            float((sys_.Minv @ sys_.X)[-1]), p.g1, p.g2, p.e1, p.e2, settings.near_margin,
             settings.adaptive,
         )  # fmt: skip
         self.xn = np.zeros(nx)

@@ -40,6 +40,18 @@ class EventRun(KernelRun):
         mono.compile_monodromy()
 
     @classmethod
+    def check_point(cls, sys_: System, settings: SolverSettings) -> None:
+        """Refuse a coefficient of restitution > 0: the event method's impacts are plastic
+        (a rebounding tip's accumulating impacts are not built into it)."""
+        p = sys_.params
+        if p.elastic:
+            raise ValueError(
+                f"method event runs plastic impacts only, got a coefficient of restitution "
+                f"{p.e1:g} at stop 1 and {p.e2:g} at stop 2; restitution > 0 needs method "
+                "euler or exponential"
+            )
+
+    @classmethod
     def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL, **others: object) -> float:
         """Validated ``event_tol``; other options are refused (the event budget is the solver
         setting ``max_events_per_period``)."""
