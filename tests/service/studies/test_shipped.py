@@ -27,7 +27,7 @@ SHIPPED = ("chain-cells", "chain-graded", "chain-uniform-gaps", "demo-fig5",
            "experiment-table1", "hysteresis-frequency-sweep", "hysteresis-gap-sweep",
            "paper-fig5-gaps", "paper-fig5-second-band",
            "paper-fig5-theta1", "paper-fig6-effective-mass", "paper-fig6-theta-sweep",
-           "quick")  # fmt: skip
+           "quick", "restitution-gamma")  # fmt: skip
 
 
 def test_the_package_data_is_the_repositorys_studies_folder() -> None:
