@@ -35,7 +35,8 @@ def test_every_worker_parameter_is_in_exactly_one_block_or_the_grid() -> None:
     # xi is both: the model's default and an axis a grid may vary instead; a chain's fields
     # (cells, and its per-cell gaps and sigmas) are not CellParams'
     chain = {"cells", "gaps", "sigmas"}
-    assert (set(ModelSpec.model_fields) - chain) | (set(MODEL_AXES) - {"gap", "cells"}) == cell
+    both = {"gap", "restitution"}  # axes that set both stops' parameter
+    assert (set(ModelSpec.model_fields) - chain) | (set(MODEL_AXES) - both - {"cells"}) == cell
     assert set(ModelSpec.model_fields) & set(MODEL_AXES) == {"xi", "cells"}
     assert set(SolverSpec.model_fields) == {f.name for f in dataclasses.fields(SolverSettings)}
     # PhysicalCell's fields, plus the per-frequency base amplitude (set point by point as
