@@ -106,3 +106,95 @@ def test_what_cannot_honour_restitution_refuses_it_naming_the_field():
     chain = ChainParams(dataclasses.replace(CELL, e2=0.5), 2)
     with pytest.raises(ValueError, match=r"cells \[1, 2\] have e1 or e2 > 0"):
         simulate_chain_point(chain, SolverSettings(method="euler"))
+
+
+# --------------------------------------------------------------------------- a known orbit
+
+
+def _oscillator(sys_, ss):
+    """The reduced cell: one beam mode, θ = 1e-6, so the outer mass moves as in the closed form
+    whatever the tip does (paper coupling: its row has no beam term; an impulse moves it by
+    1e-6 of the tip's share). The tip w = W₀q is then a damped oscillator ẅ + cẇ + kw driven by
+    the mass: its impact-free response w_p is the closed form's, and the homogeneous part has
+    the transition matrix Φ(t) of a damped oscillator."""
+    g = ss.params.gamma_r
+    k = sys_.K[0, 0] / sys_.M[0, 0]
+    c = sys_.C[0, 0] / sys_.M[0, 0]
+    Wq = sys_.W[0] * ss.U[0]
+    wd, a = np.sqrt(k - c * c / 4), c / 2
+
+    def wp(t):
+        return (Wq * np.exp(1j * g * t)).real, (1j * g * Wq * np.exp(1j * g * t)).real
+
+    def phi(t):
+        E, C, S = np.exp(-a * t), np.cos(wd * t), np.sin(wd * t)
+        return np.array(
+            [[E * (C + a / wd * S), E * S / wd], [-E * k * S / wd, E * (C - a / wd * S)]]
+        )
+
+    return wp, phi
+
+
+def period_one_orbit(p: CellParams):
+    """The period-1 orbit with one impact a period at stop 1 (e = p.e1): impact phase t₀ and
+    approach velocity v, from w(t₀) = w(t₀ + T) = g̃1, ẇ(t₀⁺) = −e v, ẇ(t₀ + T⁻) = v with the
+    closed-form flight between (Φ(T) and w_p), v eliminated, t₀ a root of one scalar equation;
+    and the whole cell's state on it at τ = 0."""
+    from scipy.optimize import brentq
+
+    sys_ = assemble(p)
+    ss = linear_tail(sys_, True).steady
+    wp, phi = _oscillator(sys_, ss)
+    T, e, gap = 2 * np.pi / p.gamma_r, p.e1, p.g1
+    P = phi(T)
+
+    def v_of(t0):
+        w, wd = wp(t0)
+        return ((P[0, 0] - 1) * (gap - w) - P[0, 1] * wd) / (e * P[0, 1])
+
+    def residual(t0):
+        w, wd = wp(t0)
+        v = v_of(t0)
+        return P[1, 0] * (gap - w) + P[1, 1] * (-e * v - wd) - v + wd
+
+    ts = np.linspace(0, T, 2001)
+    rs = [residual(t) for t in ts]
+    for lo, hi, rlo, rhi in zip(ts[:-1], ts[1:], rs[:-1], rs[1:], strict=True):
+        if rlo * rhi < 0:
+            t0 = brentq(residual, lo, hi, xtol=1e-15)
+            v = v_of(t0)
+            h0 = np.array([gap - wp(t0)[0], -e * v - wp(t0)[1]])
+            between = [wp(t0 + t)[0] + (phi(t) @ h0)[0] for t in np.linspace(0, T, 2001)[1:-1]]
+            if v > 0 and max(between) < gap:  # approaching, and clear of the stop between
+                h = phi(T - t0) @ h0  # τ = T ≡ 0 lies in (t₀, t₀ + T)
+                N = sys_.ndof
+                x0 = np.zeros(2 * N)
+                x0[0], x0[N] = (wp(T)[0] + h[0]) / sys_.W[0], (wp(T)[1] + h[1]) / sys_.W[0]
+                x0[N - 1] = ss.U[-1].real
+                x0[2 * N - 1] = (1j * p.gamma_r * ss.U[-1]).real
+                return t0, v, x0, sys_
+    raise AssertionError("no period-1 orbit")
+
+
+@pytest.mark.parametrize("method", ["euler", "exponential"])
+def test_the_impact_oscillators_period_one_orbit_in_closed_form(method):
+    base = CellParams(theta=1e-6, sigma=0.05, gamma_s=1.0, gamma_r=1.3, g1=1.0, g2=1e6, modes=1)
+    amp = abs(assemble(base).W[0] * linear_tail(assemble(base), True).steady.U[0])
+    p = dataclasses.replace(base, g1=0.5 * amp, e1=0.5, e2=0.5)  # the tip's free swing halved
+    t0, v, x0, sys_ = period_one_orbit(p)
+    T, spp, n = 2 * np.pi / p.gamma_r, 16384, 20
+    run = RUNS[method](sys_, SolverSettings(method=method, steps_per_period=spp),
+                       linear_tail(sys_, True), True, 1e9)  # fmt: skip
+    run.reset(x0)
+    run.keep_history(n * (spp + 8))
+    run.advance(n, False, 0, np.zeros((n, ms.ROW)), np.zeros((n, run.nx)))
+    h = run.history(p, sys_.kappa)
+    N = sys_.ndof
+    for k in range(n - 5, n):  # held on the orbit: one impact a period, where it belongs
+        hit = np.nonzero((h["impulse1"] > 0) & (h["tau"] > k * T) & (h["tau"] <= (k + 1) * T))[0]
+        assert len(hit) == 1
+        i = hit[0]
+        # the impulse goes in at the start of the step in which the tip would reach the stop
+        assert 0.0 <= (h["tau"][i] - k * T - t0) / (T / spp) <= 1.0
+        approach = sys_.W @ h["state"][i - 1][N:]
+        assert approach == pytest.approx(v, rel=1e-3)  # e off by 10 % moves it by 2 %
