@@ -32,7 +32,7 @@ from service.api.catalogue import (
 from service.studies.chunks import CHUNK_FIELDS, record_columns, with_transient_flag
 from service.studies.fence import FenceLost
 from service.studies.points import KEY_LENGTH, PARAM_COLUMNS, cell_of, solver_key
-from service.studies.variables import AXES, result_values, stop_coordinate
+from service.studies.variables import AXES, STOP_VARIABLES, result_values, stop_coordinate
 from worker.simulate import SOLVER_VERSION
 
 __all__ = [
@@ -392,13 +392,15 @@ def points_csv(rows: Sequence[Mapping[str, Any]]) -> str:
     import io
 
     head = [*_ID_COLUMNS, *PARAM_COLUMNS, "cells"]
-    fields = [f for f in CHUNK_FIELDS if f != "impacts_per_period"]
+    fields = [f for f in CHUNK_FIELDS if f not in STOP_VARIABLES]
+    # a per-stop variable as two columns (impacts_per_period: impacts_stop1, impacts_stop2)
+    stops = [(v, "impacts" if v == "impacts_per_period" else v) for v in STOP_VARIABLES]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow([*head, *fields, "impacts_stop1", "impacts_stop2"])
+    w.writerow([*head, *fields, *(f"{c}_stop{k}" for _, c in stops for k in (1, 2))])
     for r in rows:
-        imp = r.get("impacts_per_period") or [None, None]
-        w.writerow([_cell(r.get(c)) for c in (*head, *fields)] + [_cell(v) for v in imp])
+        per = [v for name, _ in stops for v in (r.get(name) or [None, None])]
+        w.writerow([_cell(r.get(c)) for c in (*head, *fields)] + [_cell(v) for v in per])
     return buf.getvalue()
 
 
@@ -417,7 +419,7 @@ def points_dataset(rows: Sequence[Mapping[str, Any]]) -> Any:
     failed = np.asarray(cols["failed"], dtype=bool) if "failed" in cols else None
     for name, arr in cols.items():
         a, attrs = result_values(name, arr, failed)
-        dims: tuple[str, ...] = ("point", "stop") if name == "impacts_per_period" else ("point",)
+        dims: tuple[str, ...] = ("point", "stop") if name in STOP_VARIABLES else ("point",)
         data_vars[name] = (dims, a, attrs)
     coords: dict[str, Any] = {
         c: ("point", np.array([str(r.get(c, "")) for r in rows], dtype=object)) for c in _ID_COLUMNS

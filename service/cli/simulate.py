@@ -177,6 +177,15 @@ def _print_point(result: Any) -> None:
         print(f"Floquet multiplier  |μ| = {result.floquet_multiplier:.4g} {span}".rstrip())
     i1, i2 = result.impacts_per_period
     print(f"impacts / period    stop 1: {i1:g}, stop 2: {i2:g}")
+    if result.contact_fraction is not None:
+        c1, c2 = result.contact_fraction
+        ses = result.contact_fraction_se
+        pm = ("", "") if ses is None else tuple(f" ± {100 * v:.2g}" for v in ses)
+        print(f"time on the stops   stop 1: {100 * c1:.3g}{pm[0]} %, stop 2: {100 * c2:.3g}{pm[1]} "
+              "% of the period")  # fmt: skip
+    if result.impact_velocity is not None and any(v is not None for v in result.impact_velocity):
+        v1, v2 = ("-" if v is None else f"{v:.4g}" for v in result.impact_velocity)
+        print(f"impact velocity     stop 1: {v1}, stop 2: {v2} (mean approach, B per τ)")
     print(f"steps               {result.steps} ({result.contact_steps} with contact)")
     print(f"wall time           {result.wall_s * 1e3:.2f} ms ({result.method})")
 

@@ -58,6 +58,7 @@ from service.studies.schema import Study
 from service.studies.variables import (
     CHAIN_VARIABLES,
     OUTCOMES,
+    STOP_VARIABLES,
     SWEEP_VARIABLES,
     VARIABLES,
     outcome_codes,
@@ -258,12 +259,12 @@ def record_columns(
             cols[name] = arr
             continue
         var = VARIABLES[name] if name in VARIABLES else SWEEP_VARIABLES[name]
-        if name == "impacts_per_period":
+        if name in STOP_VARIABLES:
             arr = np.full((n, 2), np.nan)
             for i, r in enumerate(records):
                 v = r.get(name)
                 if v is not None:
-                    arr[i] = v
+                    arr[i] = [np.nan if x is None else x for x in v]
         elif var.kind == "float":
             arr = np.array(
                 [np.nan if r.get(name) is None else float(r[name]) for r in records],
@@ -307,6 +308,8 @@ def _chunk_column(data: Mapping[str, np.ndarray], name: str, n: int) -> np.ndarr
         if name == "may_be_transient":
             return flagged
         return np.where(flagged, np.asarray(data["steady_period"], dtype=np.int64), FILL_INT)
+    if name in STOP_VARIABLES:  # a per-stop variable added since
+        return np.full((n, 2), np.nan)
     if name in VARIABLES and VARIABLES[name].kind == "float":
         return np.full(n, np.nan)
     if name in LINE_FIELDS:  # a line's task that failed: where it started from is unknown

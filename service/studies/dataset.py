@@ -45,6 +45,7 @@ from service.studies.variables import (
     CHAIN_VARIABLES,
     MISSING_INT,
     PHYSICAL_VARIABLES,
+    STOP_VARIABLES,
     SWEEP_VARIABLES,
     VARIABLES,
     cell_coordinate,
@@ -163,7 +164,7 @@ def results_from_records(
         if var.group not in groups:
             continue
         a, attrs = result_values(name, cols[name], failed)
-        if name == "impacts_per_period":
+        if name in STOP_VARIABLES:
             data_vars[name] = ((*dims, "stop"), a.reshape(*shape, 2), attrs)
         else:
             data_vars[name] = (dims, a.reshape(shape), attrs)

@@ -38,6 +38,7 @@ __all__ = [
     "PHYSICAL_AXES",
     "PHYSICAL_FIELDS",
     "PHYSICAL_VARIABLES",
+    "STOP_VARIABLES",
     "SWEEP_VARIABLES",
     "VARIABLES",
     "AxisInfo",
@@ -236,6 +237,23 @@ VARIABLES: dict[str, Variable] = {
     "impacts_per_period": Variable(
         "response", "float", "1", "impacts per excitation period at stop"
     ),
+    "contact_fraction": Variable(
+        "response", "float", "1",
+        "fraction of the period the tip spends on stop (method event: stuck on it; time "
+        "stepping: the steps whose impulse holds it there): exact over the "
+        "orbit of a periodic point, 0 at a linear one, the mean over the stationary span's "
+        "windows at an irregular or unsettled one",
+    ),
+    "contact_fraction_se": Variable(
+        "response", "float", "1",
+        "standard error of contact_fraction at an irregular or unsettled point (the windows as "
+        "batches); missing elsewhere",
+    ),
+    "impact_velocity": Variable(
+        "response", "float", "1",
+        "mean velocity of the tip towards stop at the impacts counted there (in units of B "
+        "per unit tau); missing where the stop had none",
+    ),
     "floquet_multiplier": Variable(
         "response", "float", "1",
         "modulus of the dominant Floquet multiplier of the steady response over its period: "
@@ -317,6 +335,15 @@ CHAIN_VARIABLES: dict[str, Variable] = {
         mask=False,
     ),
 }  # fmt: skip
+
+
+#: Result variables with one value per stop (a trailing ``stop`` dimension of 2).
+STOP_VARIABLES: tuple[str, ...] = (
+    "impacts_per_period",
+    "contact_fraction",
+    "contact_fraction_se",
+    "impact_velocity",
+)
 
 
 # --------------------------------------------------------------------------- stored values

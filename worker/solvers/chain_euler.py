@@ -93,6 +93,7 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = 0.0  # summed over the cells (the engine's last-cell view)
         last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
@@ -132,6 +133,17 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 P = lam2[c] - lam1[c]
                 if P != 0.0:  # M⁻¹X_j lives on cell j's block only
                     off = c * b
+                    wv = 0.0  # the tip's approach velocity, if a contact episode begins
+                    for i in range(b):
+                        wv += W[c, i] * x[nd + off + i]
+                    if lam1[c] > 0.0:  # a step whose impulse holds the tip on the stop
+                        ct1 += dt
+                    if lam2[c] > 0.0:
+                        ct2 += dt
+                    if lam1[c] > 0.0 and contact[c] != 1.0:
+                        vimp1 += wv
+                    if lam2[c] > 0.0 and contact[c] != 2.0:
+                        vimp2 -= wv
                     for i in range(b):
                         xn[nd + off + i] += MinvX[c, i] * P
             for i in range(nd):
@@ -185,6 +197,7 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
             regime = 3.0 * regime + contact[c]
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, 0.0, regime)  # fmt: skip
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
         kst[ms.K_CONTACT] = regime
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

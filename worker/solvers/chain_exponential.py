@@ -212,6 +212,7 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = ncoarse = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = 0.0  # summed over the cells (the engine's last-cell view)
         last = -1.0
         for jc in range(n_coarse):
             phase = jc * dtc
@@ -301,6 +302,17 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
                     P[c] = Pc
                     if Pc != 0.0:
                         solved = True
+                        wv = 0.0  # the tip's approach velocity, if a contact episode begins
+                        for i in range(b):
+                            wv += W[c, i] * x[nd + c * b + i]
+                        if lam1[c] > 0.0:  # a step whose impulse holds the tip on it
+                            ct1 += dtf
+                        if lam2[c] > 0.0:
+                            ct2 += dtf
+                        if lam1[c] > 0.0 and contact[c] != 1.0:
+                            vimp1 += wv
+                        if lam2[c] > 0.0 and contact[c] != 2.0:
+                            vimp2 -= wv
                         for i in range(nx):
                             xn[i] += B_f[c, i] * Pc
                 # Moreau: the step's trajectory starts after the impulse (only the last cell's
@@ -345,6 +357,7 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
             regime = 3.0 * regime + contact[c]
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, ncoarse, regime)  # fmt: skip
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
         kst[ms.K_CONTACT] = regime
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

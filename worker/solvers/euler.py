@@ -53,6 +53,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = wv_before = 0.0
         last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
@@ -97,6 +98,13 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 h1 -= dt * x[n] * sph
                 h2 += dt * sbv * cph
                 h3 -= dt * sbv * sph
+            if l1 > 0.0 or l2 > 0.0:
+                wv_before = ms.dot(W, x[N:], N)  # the tip's approach velocity
+                # a step whose impulse holds the tip is a step on that stop
+                if l1 > 0.0:
+                    ct1 += dt
+                if l2 > 0.0:
+                    ct2 += dt
             for i in range(nx):
                 x[i] = xn[i]
             v1 = x[N + n]
@@ -108,13 +116,19 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
             if l1 > 0.0 or l2 > 0.0:
                 ncontact += 1.0
             if l1 > 0.0 or l2 > 0.0 or contact != 0:
+                i1, i2 = imp1, imp2
                 contact, imp1, imp2, peak, last = contact_step(
                     l1, l2, js / spp, contact, imp1, imp2, peak, last, W, x, N, g1, g2
                 )
+                if imp1 > i1:
+                    vimp1 += wv_before
+                if imp2 > i2:
+                    vimp2 -= wv_before
             if hist.shape[0] > 0:
                 record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, 0.0, contact)  # fmt: skip
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
         kst[ms.K_CONTACT] = contact  # read at the next period's start, this batch or the next
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

@@ -54,7 +54,11 @@ M_REGIME = 15  # contact state at the period's end: 0 free, 1/2 on stop 1/2
 M_XNORM = 16  # |x|∞ at the period's end
 M_TAIL = 17  # bound of |w_tip| over all later time (linear tail test), -1 if not evaluated
 M_MEASURED = 18  # 1 if harmonics and the phase-portrait integrals were accumulated
-ROW = 19
+M_CT1 = 19  # time on stop 1 in the period (event: stuck; time stepping: steps held by impulses)
+M_CT2 = 20  # … on stop 2
+M_VIMP1 = 21  # sum of the tip's approach velocities of the impacts counted at stop 1
+M_VIMP2 = 22  # … at stop 2
+ROW = 23
 
 # --------------------------------------------------------------------------- kernel state
 
@@ -140,6 +144,16 @@ def close_row(rows, k, smin, smax, h, vv, vb, imp1, imp2, peak, last, nsteps, nc
     rows[k, M_CONTACT] = ncontact
     rows[k, M_COARSE] = ncoarse
     rows[k, M_REGIME] = regime
+
+
+@njit(cache=True, nogil=True)
+def close_impacts(rows, k, ct1, ct2, vimp1, vimp2):
+    """Write a period's time on each stop and the sums of its impacts' approach velocities
+    (after :func:`close_row`; a kernel that does not measure them leaves them 0)."""
+    rows[k, M_CT1] = ct1
+    rows[k, M_CT2] = ct2
+    rows[k, M_VIMP1] = vimp1
+    rows[k, M_VIMP2] = vimp2
 
 
 @njit(cache=True, nogil=True, inline="always")

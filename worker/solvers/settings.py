@@ -185,6 +185,8 @@ class SolverSettings:
 
 # PointResult fields kept out of records (arrays: records stay JSON-able and column-able)
 _NOT_IN_RECORD = ("history", "final_state")
+#: A result's fields with one value per stop (stop 1, stop 2): lists in a record.
+_PER_STOP = ("impacts_per_period", "contact_fraction", "contact_fraction_se", "impact_velocity")
 #: A chain's fields of a result (absent from a unit cell's record).
 CHAIN_FIELDS = ("cells", "cell_transmittance_db", "cell_transmittance_linear_db")
 
@@ -220,6 +222,14 @@ class PointResult:
     and failed points, whose per-cell values are not proven). The unit cell leaves them
     ``None`` and its record without them.
 
+    ``contact_fraction`` is the fraction of the period the tip spends on stop 1 and stop 2
+    (the event method: stuck on it; time stepping: the steps whose impulse holds it there),
+    exact over the orbit of a periodic point, 0 at a linear one, and at an irregular or
+    unsettled point the mean over the stationary span's windows with its
+    standard error ``contact_fraction_se`` (windows as batches). ``impact_velocity`` is the
+    mean approach velocity of the impacts counted at each stop (``None`` where a stop had none).
+    Chains leave them ``None``.
+
     ``final_state`` is ``[u; q]`` at a period boundary (forcing phase 0) of the reported
     response, what a sweep line hands to its next point: the orbit's start (``periodic``), the
     closed-form steady state (``linear``), the state at the end of the run (``irregular``,
@@ -249,6 +259,9 @@ class PointResult:
     impact_effect_db: float | None = None
     may_be_transient: bool = False
     impacting_periods: int | None = None
+    contact_fraction: tuple[float, float] | None = None
+    contact_fraction_se: tuple[float, float] | None = None
+    impact_velocity: tuple[float | None, float | None] | None = None
     cells: int | None = None
     cell_transmittance_db: list[float] | None = None
     cell_transmittance_linear_db: list[float | None] | None = None
@@ -272,8 +285,9 @@ class PointResult:
         if self.cells is None:
             for name in CHAIN_FIELDS:
                 del out[name]  # a unit cell's record is what it always was
-        if self.impacts_per_period is not None:
-            out["impacts_per_period"] = list(self.impacts_per_period)
+        for name in _PER_STOP:
+            if out[name] is not None:
+                out[name] = list(out[name])
         out["failed"] = self.failed
         return out
 

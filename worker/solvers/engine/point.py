@@ -91,7 +91,8 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
         res = PointResult(
             outcome="linear", transmittance_db=ss.transmittance_db, transmittance_db_se=None,
             amplitude=ss.amplitude, theta_eff=ss.theta_eff, theta_eff_slope=ss.theta_eff,
-            response_period=1, impacts_per_period=(0.0, 0.0), peak_impulse=0.0,
+            response_period=1, impacts_per_period=(0.0, 0.0), contact_fraction=(0.0, 0.0),
+            peak_impulse=0.0,
             floquet_multiplier=math.exp(tail.max_re * T), wall_s=0.0, reason="",
             method=settings.method, **common,
         )  # fmt: skip
@@ -110,6 +111,10 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
             response_period=orbit.p,
             impacts_per_period=(float(rows[:, ms.M_IMP1].sum() / len(rows)),
                                 float(rows[:, ms.M_IMP2].sum() / len(rows))),
+            contact_fraction=(float(rows[:, ms.M_CT1].sum() / (len(rows) * T)),
+                              float(rows[:, ms.M_CT2].sum() / (len(rows) * T))),
+            impact_velocity=_approach(rows[:, ms.M_VIMP1].sum(), rows[:, ms.M_VIMP2].sum(),
+                                      rows[:, ms.M_IMP1].sum(), rows[:, ms.M_IMP2].sum()),
             peak_impulse=float(rows[:, ms.M_PEAK].max()),
             floquet_multiplier=_finite_or_none(orbit.multiplier), wall_s=0.0, reason="",
             method=settings.method, **common,
@@ -157,6 +162,12 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     return res
 
 
+def _approach(v1: float, v2: float, n1: float, n2: float) -> tuple[float | None, float | None]:
+    """The mean approach velocity of the impacts at each stop (sums over counts; None where a
+    stop had none)."""
+    return (float(v1 / n1) if n1 > 0 else None, float(v2 / n2) if n2 > 0 else None)
+
+
 def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
                        kappa: float, theta: float) -> PointResult:  # fmt: skip
     """Γ, its standard error and the rest from the per-period statistics (irregular,
@@ -173,6 +184,13 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
     span = range(min(-(-(win.first + st.start) // win.window), len(win) - 1), len(win))
     h = sum((win.harm[i] for i in span if win.measured[i]), np.zeros(6))
     imp = win.impacts[-1]
+    # the time on each stop per window of the stationary span: its mean and standard error
+    # (windows as batches); the approach velocity over all the span's impacts
+    T = 2.0 * math.pi / p.gamma_r
+    ct = np.array([win.contact[i][:2] for i in span]) / (win.window * T)
+    vs = sum((win.contact[i] for i in span), np.zeros(4))
+    ni = sum((np.array(win.impacts[i]) for i in span), np.zeros(2))
+    se = ct.std(axis=0, ddof=1) / math.sqrt(len(ct)) if len(ct) > 1 else None
     return PointResult(
         outcome=outcome, transmittance_db=db, transmittance_db_se=_finite_or_none(_se_db(st)),
         amplitude=st.mean,
@@ -180,6 +198,9 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
         theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
         response_period=0,
         impacts_per_period=(float(imp[0] / win.window), float(imp[1] / win.window)),
+        contact_fraction=(float(ct[:, 0].mean()), float(ct[:, 1].mean())),
+        contact_fraction_se=None if se is None else (float(se[0]), float(se[1])),
+        impact_velocity=_approach(vs[2], vs[3], ni[0], ni[1]),
         peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
         wall_s=0.0, reason=reason, method=eng.s.method, **common,
     )  # fmt: skip

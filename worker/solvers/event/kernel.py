@@ -503,6 +503,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         seg = False
         pos0 = rc0 = rs0 = 0.0
         nsteps = ncoarse = nimpacts = imp1 = imp2 = peak = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = 0.0  # time stuck on each stop, approach velocities
         last = -1.0
         known = -1.0  # _magnitude(al) where already known (the forcing phase is reset below)
         for j in range(n_grid):
@@ -547,8 +548,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     if contact != kk:
                         if kk == 1:
                             imp1 += 1.0
+                            vimp1 += wd
                         else:
                             imp2 += 1.0
+                            vimp2 -= wd
                         last = (j * h + t) / T
                     peak = max(peak, imp_l)
                     contact = kk
@@ -611,6 +614,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             h0, h1, h2, h3, vv, vb = _seg_open(r, al, a0, nkr, H, C, rc0, rs0, h0,
                                                                h1, h2, h3, vv, vb)  # fmt: skip
                         il = _impulse(RV, r, al, nkr, lam, h, cw) if record and r != 0 else 0.0
+                        if r == 1:
+                            ct1 += h
+                        elif r == 2:
+                            ct2 += h
                         if r == 0 and contact != 0:
                             contact = _opened(contact, al, h, RV, lam, nkr, g1, g2, f0, fd0, f1,
                                               fd1, cw)  # fmt: skip
@@ -715,6 +722,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                 smax = max(smax, hi)
                 smin = min(smin, lo)
                 il = _impulse(RV, r, al, nkr, lam, lp, cw) if record and r != 0 else 0.0
+                if r == 1:
+                    ct1 += lp
+                elif r == 2:
+                    ct2 += lp
                 if r == 0 and contact != 0:
                     contact = _opened(contact, al, lp, RV, lam, nkr, g1, g2,
                                       _rowa(RV, 0, R_W, al, nkr), _rowa(RV, 0, R_WD, al, nkr),
@@ -783,6 +794,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
             have = False
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, nimpacts, ncoarse, r)  # fmt: skip
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
         _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
         kst[ms.K_PERIOD] += 1.0
         _state(V, r, al, nk[r], nzr[r], y)
