@@ -669,3 +669,13 @@ def test_chain_cost_quick_runs_both_methods(tmp_path: Path) -> None:
         for m in ("euler", "exponential"):
             assert f"| {n} | {m} |" in md
     assert "growth exponent, `exponential`" in md and "| 1.9 |" in md
+
+
+@pytest.mark.slow
+def test_restitution_cost_times_every_setting_against_the_reference(tmp_path: Path) -> None:
+    rc = _load("restitution_cost")
+    assert rc.main(["--points", "2", "--out", str(tmp_path)]) == 0
+    md = (tmp_path / "restitution_cost.md").read_text()
+    for method, spp in rc.LADDER:
+        assert f"| {method} | {spp} |" in md
+    assert "reference `exponential` at 16384 steps" in md and "outcomes:" in md
