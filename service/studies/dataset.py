@@ -54,7 +54,7 @@ from service.studies.variables import (
     result_values,
     stop_coordinate,
 )
-from worker.simulate import SOLVER_VERSION
+from worker.simulate import POINT_KEYS, SOLVER_VERSION
 
 __all__ = [
     "FILL_FLOAT",
@@ -101,8 +101,7 @@ def lattice_stop_bands(study: Study) -> list[tuple[float, float]] | None:
     if study.model.sigmas is not None or not set(study.dims()) <= _LATTICE_FREE_AXES:
         return None
     point = study.points(0, 1, grid=True)[0]
-    fields = {k: v for k, v in point.items() if not k.startswith("cell")}
-    return stop_bands(CellParams(**fields))
+    return stop_bands(CellParams(**{k: point[k] for k in POINT_KEYS if k in point}))
 
 
 def results_from_records(

@@ -57,7 +57,7 @@ from service.studies.specs import (
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
 from worker.model import CellParams
 from worker.physical import CELL_FIELDS, PhysicalCell
-from worker.simulate import CHAIN_METHODS, SOLVER_VERSION
+from worker.simulate import CHAIN_METHODS, RESTITUTION_METHODS, SOLVER_VERSION
 
 __all__ = [
     "DEFAULT_COEXISTENCE_TOL_DB",
@@ -464,7 +464,10 @@ class Study(StrictModel):
             explicit_xi="xi" in self.model.model_fields_set,
             max_points=max_points,
             lead=self._lead_sizes(),
-        )
+            # a chain's per-cell lists give what these axes would
+            supplied={a for name, a in (("gaps", "gap"), ("sigmas", "sigma"))
+                      if getattr(self.model, name) is not None},
+        )  # fmt: skip
         if self.sweep is not None:
             out += _sweep_problems(self.sweep, self.grid)
         if self.adaptive is not None:
@@ -488,9 +491,10 @@ def _restitution_problems(study: Study) -> list[tuple[str, str]]:
     if not axes or max(_ends(given[a])[1] for a in axes) <= 0.0:
         return []
     out = []
-    if study.solver.method == "event":
+    if study.solver.method not in RESTITUTION_METHODS:
         out.append((f"grid.{axes[0]}", "a coefficient of restitution > 0 needs solver.method "
-                    "euler or exponential (method event runs plastic impacts only)"))  # fmt: skip
+                    f"{' or '.join(RESTITUTION_METHODS)} (method {study.solver.method} runs "
+                    "plastic impacts only)"))  # fmt: skip
     if study.max_cells() > 1:
         out.append((f"grid.{axes[0]}", "chains of N > 1 cells run plastic impacts only (e = 0)"))
     return out
@@ -510,9 +514,6 @@ def _chain_problems(
     for name, axes in _PER_CELL_AXES.items():
         if getattr(m, name) is None:
             continue
-        # the list gives what the grid would: its "is required" problems are answered
-        out = [(k, v) for k, v in out if not (k in {f"grid.{a}" for a in axes}
-                                               and v.startswith("is required"))]  # fmt: skip
         for a in axes:
             if a in given:
                 out.append((f"grid.{a}", f"is given per cell by model.{name}; give it in one "
@@ -640,7 +641,10 @@ def _grid_problems(
     explicit_xi: bool,
     max_points: int | None,
     lead: Mapping[str, int] | None = None,
+    supplied: set[str] | None = None,
 ) -> list[tuple[str, str]]:
+    """Problems of the grid: its axes for the kind of study, the required ones (``supplied``:
+    axes another block gives), the physical block, the point limit."""
     limit = DEFAULT_MAX_POINTS if max_points is None else max_points
     out: list[tuple[str, str]] = []
     given = grid.given()
@@ -651,7 +655,7 @@ def _grid_problems(
                     (f"grid.{k}", "is a physical axis; give a physical: block or use "
                      f"one of {', '.join(MODEL_AXES)}")
                 )  # fmt: skip
-        out += _presence_problems(set(given))
+        out += _presence_problems(set(given) | (supplied or set()))
         if explicit_xi and "xi" in given:
             out.append(("grid.xi", "is also given as model.xi; give it in one place"))
     else:

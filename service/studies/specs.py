@@ -210,18 +210,6 @@ CELLS_META: dict[str, Any] = {
 }  # fmt: skip
 
 
-def _per_cell_values(name: str, meta: Mapping[str, Any], values: list[float] | None
-                     ) -> list[float] | None:  # fmt: skip
-    """A per-cell list's values, each checked against the cell parameter's range."""
-    if values is None:
-        return None
-    for i, v in enumerate(values):
-        problem = violation(name, v, meta)
-        if problem is not None:
-            raise ValueError(f"{problem} (value {i}: cell {i + 1})")
-    return values
-
-
 class _ChainFields(StrictModel):
     """A chain of N cells in series (docs/chains.md): absent, the unit cell."""
 
@@ -253,12 +241,12 @@ class _ChainFields(StrictModel):
     @field_validator("gaps")
     @classmethod
     def _gaps(cls, values: list[float] | None) -> list[float] | None:
-        return _per_cell_values("gaps", _CELL_META["g1"], values)
+        return None if values is None else _checked_values("gaps", _CELL_META["g1"], values)
 
     @field_validator("sigmas")
     @classmethod
     def _sigmas(cls, values: list[float] | None) -> list[float] | None:
-        return _per_cell_values("sigmas", _CELL_META["sigma"], values)
+        return None if values is None else _checked_values("sigmas", _CELL_META["sigma"], values)
 
     @model_validator(mode="after")
     def _lengths(self) -> _ChainFields:

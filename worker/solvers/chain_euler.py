@@ -34,7 +34,7 @@ from worker.solvers.euler import check_stable, default_steps
 from worker.solvers.lcp import LEMKE_OK, lemke_nb, lemke_workspace, two_stop_impulses
 from worker.solvers.linear import GATE_RTOL, _free_modes, tail_proof
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
-from worker.solvers.stepping import SteppingRun, contact_step, extrema
+from worker.solvers.stepping import SteppingRun, contact_step, extrema, tally_impulses
 
 __all__ = [
     "ChainEulerRun",
@@ -133,17 +133,10 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 P = lam2[c] - lam1[c]
                 if P != 0.0:  # M⁻¹X_j lives on cell j's block only
                     off = c * b
-                    wv = 0.0  # the tip's approach velocity, if a contact episode begins
-                    for i in range(b):
-                        wv += W[c, i] * x[nd + off + i]
-                    if lam1[c] > 0.0:  # a step whose impulse holds the tip on the stop
-                        ct1 += dt
-                    if lam2[c] > 0.0:
-                        ct2 += dt
-                    if lam1[c] > 0.0 and contact[c] != 1.0:
-                        vimp1 += wv
-                    if lam2[c] > 0.0 and contact[c] != 2.0:
-                        vimp2 -= wv
+                    ct1, ct2, vimp1, vimp2 = tally_impulses(
+                        lam1[c], lam2[c], contact[c], ms.dot(W[c], x[nd + off :], b), dt, ct1,
+                        ct2, vimp1, vimp2,
+                    )  # fmt: skip
                     for i in range(b):
                         xn[nd + off + i] += MinvX[c, i] * P
             for i in range(nd):

@@ -40,7 +40,7 @@ from worker.solvers.chain_euler import ChainSteppingRun, ChainTail, cell_blocks,
 from worker.solvers.exponential import DEFAULT_STEPS, MIN_GAIN_RATIO, _expm, _propagate
 from worker.solvers.lcp import LEMKE_OK, lemke_nb, lemke_workspace, two_stop_impulses
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
-from worker.solvers.stepping import contact_step, extrema
+from worker.solvers.stepping import contact_step, extrema, tally_impulses
 
 __all__ = ["GS_RTOL", "ChainExponentialRun", "chain_exponential_kernel", "chain_impulses"]
 
@@ -302,17 +302,10 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
                     P[c] = Pc
                     if Pc != 0.0:
                         solved = True
-                        wv = 0.0  # the tip's approach velocity, if a contact episode begins
-                        for i in range(b):
-                            wv += W[c, i] * x[nd + c * b + i]
-                        if lam1[c] > 0.0:  # a step whose impulse holds the tip on it
-                            ct1 += dtf
-                        if lam2[c] > 0.0:
-                            ct2 += dtf
-                        if lam1[c] > 0.0 and contact[c] != 1.0:
-                            vimp1 += wv
-                        if lam2[c] > 0.0 and contact[c] != 2.0:
-                            vimp2 -= wv
+                        ct1, ct2, vimp1, vimp2 = tally_impulses(
+                            lam1[c], lam2[c], contact[c], ms.dot(W[c], x[nd + c * b :], b), dtf,
+                            ct1, ct2, vimp1, vimp2,
+                        )  # fmt: skip
                         for i in range(nx):
                             xn[i] += B_f[c, i] * Pc
                 # Moreau: the step's trajectory starts after the impulse (only the last cell's

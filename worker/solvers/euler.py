@@ -17,7 +17,13 @@ from worker.model import System
 from worker.solvers import measure as ms
 from worker.solvers.lcp import LEMKE_OK, lemke_nb, lemke_workspace, two_stop_impulses
 from worker.solvers.settings import MAX_STEPS_PER_PERIOD, SolverSettings
-from worker.solvers.stepping import SteppingRun, contact_step, extrema, record_step
+from worker.solvers.stepping import (
+    SteppingRun,
+    contact_step,
+    extrema,
+    record_step,
+    tally_impulses,
+)
 
 DEFAULT_STEPS = 1024
 
@@ -53,7 +59,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = 0.0
-        ct1 = ct2 = vimp1 = vimp2 = wv_before = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = 0.0
         last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
@@ -99,12 +105,8 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 h2 += dt * sbv * cph
                 h3 -= dt * sbv * sph
             if l1 > 0.0 or l2 > 0.0:
-                wv_before = ms.dot(W, x[N:], N)  # the tip's approach velocity
-                # a step whose impulse holds the tip is a step on that stop
-                if l1 > 0.0:
-                    ct1 += dt
-                if l2 > 0.0:
-                    ct2 += dt
+                ct1, ct2, vimp1, vimp2 = tally_impulses(l1, l2, contact, ms.dot(W, x[N:], N),
+                                                        dt, ct1, ct2, vimp1, vimp2)  # fmt: skip
             for i in range(nx):
                 x[i] = xn[i]
             v1 = x[N + n]
@@ -116,14 +118,9 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
             if l1 > 0.0 or l2 > 0.0:
                 ncontact += 1.0
             if l1 > 0.0 or l2 > 0.0 or contact != 0:
-                i1, i2 = imp1, imp2
                 contact, imp1, imp2, peak, last = contact_step(
                     l1, l2, js / spp, contact, imp1, imp2, peak, last, W, x, N, g1, g2
                 )
-                if imp1 > i1:
-                    vimp1 += wv_before
-                if imp2 > i2:
-                    vimp2 -= wv_before
             if hist.shape[0] > 0:
                 record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,

@@ -28,6 +28,7 @@ from worker.solvers.stepping import (
     harmonics,
     portrait,
     record_step,
+    tally_impulses,
 )
 
 DEFAULT_STEPS = 2048
@@ -152,14 +153,10 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 else:
                     l1, l2 = two_stop_impulses(Gf, g1 - wend, g2 + wend)
                 P = l2 - l1
-                wv_before = 0.0
                 if P != 0.0:
-                    wv_before = ms.dot(W, x[N:], N)  # the tip's approach velocity
-                    # a step whose impulse holds the tip is a step on that stop
-                    if l1 > 0.0:
-                        ct1 += dtf
-                    if l2 > 0.0:
-                        ct2 += dtf
+                    ct1, ct2, vimp1, vimp2 = tally_impulses(
+                        l1, l2, contact, ms.dot(W, x[N:], N), dtf, ct1, ct2, vimp1, vimp2
+                    )
                     for i in range(nx):
                         xn[i] += b_f[i] * P
                     v0 += MinvX_s * P  # Moreau: the step's trajectory starts after the impulse
@@ -179,15 +176,10 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 if P != 0.0:
                     ncontact += 1.0
                 if P != 0.0 or contact != 0:
-                    i1, i2 = imp1, imp2
                     contact, imp1, imp2, peak, last = contact_step(
                         l1, l2, (phase + js * dtf) / T, contact, imp1, imp2, peak, last, W, x,
                         N, g1, g2,
                     )  # fmt: skip
-                    if imp1 > i1:
-                        vimp1 += wv_before
-                    if imp2 > i2:
-                        vimp2 -= wv_before
                 if hist.shape[0] > 0:
                     record_step(hist, xh, kst, tau_c + (js + 1) * dtf, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,

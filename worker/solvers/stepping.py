@@ -52,6 +52,24 @@ def contact_step(l1, l2, phase, contact, imp1, imp2, peak, last, W, x, N, g1, g2
 
 
 @njit(cache=True, nogil=True, inline="always")
+def tally_impulses(l1, l2, contact, wv, dt, ct1, ct2, vimp1, vimp2):
+    """A step's impulses in the period's impact tallies (``measure.close_impacts``): a step
+    whose impulse holds the tip on a stop is ``dt`` on it; an impulse that begins a contact
+    episode (at a stop the tip is not on already: ``contact``, before :func:`contact_step`)
+    adds the tip's approach velocity ``wv`` (towards stop 1 positive, Wᵀq at the step's
+    start)."""
+    if l1 > 0.0:
+        ct1 += dt
+        if contact != 1:
+            vimp1 += wv
+    if l2 > 0.0:
+        ct2 += dt
+        if contact != 2:
+            vimp2 -= wv
+    return ct1, ct2, vimp1, vimp2
+
+
+@njit(cache=True, nogil=True, inline="always")
 def harmonics(psi, psib, P, x, cf, sf, rot_c, rot_s, nx):
     """e^{-iγτ₀}·∫ [s; s_b] e^{-iγt} dt over one exact step from [x; cf; sf] (impulse P at its
     start), as (s re, s im, s_b re, s_b im); (rot_c, rot_s) = (cos, -sin) of the phase γτ₀."""

@@ -96,7 +96,7 @@ def test_per_cell_lists_are_checked() -> None:
     assert "gaps has 1 values but model.cells is 2" in problems(d)
     d = chain_study(cells=2, gaps=[0.1, -0.2])
     del d["grid"]["cells"], d["grid"]["gap"]
-    assert "gaps must be >= 0, got -0.2" in problems(d) and "cell 2" in problems(d)
+    assert "gaps[1] must be >= 0, got -0.2" in problems(d)  # cell 2
     d = chain_study(cells=2, gaps=[0.1, 0.2])
     del d["grid"]["cells"]  # grid.gap stays: given twice
     assert "grid.gap" in problems(d) and "model.gaps" in problems(d)
