@@ -51,7 +51,6 @@ from worker.solvers.settings import (
 __all__ = [
     "CHAIN_METHODS",
     "CHAIN_POINT_KEYS",
-    "RESTITUTION_METHODS",
     "DEFAULT_METHOD",
     "EVENT_FIELDS",
     "HISTORY_FIELDS",
@@ -98,9 +97,7 @@ POINT_KEYS = (
 #: A chain point's keys besides ``POINT_KEYS`` (``chain_of``): N and the graded lists.
 CHAIN_POINT_KEYS = ("cells", "cell_sigma", "cell_g1", "cell_g2")
 
-# The methods that run chains of N > 1 cells (docs/model.md §11), for now.
-#: The methods that run Newton's law with e > 0 (``event``'s impacts are plastic only).
-RESTITUTION_METHODS = ("euler", "exponential")
+#: The methods that run chains of N > 1 cells (docs/model.md §11), for now.
 CHAIN_METHODS = ("euler", "exponential")
 CHAIN_RUNS: dict[str, type[ChainSteppingRun]] = {
     "euler": ChainEulerRun,

@@ -57,7 +57,7 @@ from service.studies.specs import (
 from service.studies.variables import MODEL_AXES, PHYSICAL_AXES, PHYSICAL_FIELDS
 from worker.model import CellParams
 from worker.physical import CELL_FIELDS, PhysicalCell
-from worker.simulate import CHAIN_METHODS, RESTITUTION_METHODS, SOLVER_VERSION
+from worker.simulate import CHAIN_METHODS, SOLVER_VERSION
 
 __all__ = [
     "DEFAULT_COEXISTENCE_TOL_DB",
@@ -485,16 +485,12 @@ class Study(StrictModel):
 
 
 def _restitution_problems(study: Study) -> list[tuple[str, str]]:
-    """Rebounding stops (an e axis above 0) need a method that honours them, and one cell."""
+    """Rebounding stops (an e axis above 0) need one cell (chains run plastic impacts)."""
     given = study.grid.given()
     axes = [a for a in ("restitution", "e1", "e2") if a in given]
     if not axes or max(_ends(given[a])[1] for a in axes) <= 0.0:
         return []
     out = []
-    if study.solver.method not in RESTITUTION_METHODS:
-        out.append((f"grid.{axes[0]}", "a coefficient of restitution > 0 needs solver.method "
-                    f"{' or '.join(RESTITUTION_METHODS)} (method {study.solver.method} runs "
-                    "plastic impacts only)"))  # fmt: skip
     if study.max_cells() > 1:
         out.append((f"grid.{axes[0]}", "chains of N > 1 cells run plastic impacts only (e = 0)"))
     return out

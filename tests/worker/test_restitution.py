@@ -97,12 +97,6 @@ def test_what_cannot_honour_restitution_refuses_it_naming_the_field():
         dataclasses.replace(CELL, e1=1.5)
     with pytest.raises(ValueError, match=r"e2 must be >= 0"):
         dataclasses.replace(CELL, e2=-0.1)
-    with pytest.raises(
-        ValueError,
-        match=r"method event runs plastic impacts only, got a coefficient of restitution 0.5 "
-        r"at stop 1 and 0 at stop 2; restitution > 0 needs method euler",
-    ):
-        simulate_point(dataclasses.replace(CELL, e1=0.5), SolverSettings(method="event"))
     chain = ChainParams(dataclasses.replace(CELL, e2=0.5), 2)
     with pytest.raises(ValueError, match=r"cells \[1, 2\] have e1 or e2 > 0"):
         simulate_chain_point(chain, SolverSettings(method="euler"))

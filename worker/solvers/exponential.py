@@ -47,6 +47,22 @@ def _propagate(Phi, E, x, cf, sf, xn, nx):
         xn[i] = acc
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _resting(lam, dt, held, pend, ct):
+    """The time on a stop of a resting tip under Newton's law (e > 0): an impulse at a step's
+    start leaves the tip off the stop by what the step's acceleration moves it, so a resting
+    tip takes one every other step. A single impulse-free step between two impulse steps at
+    the same stop is counted on it (``held``: 1 after an impulse step, 2 after one free step
+    that followed one, whose time is ``pend``). Returns (held, pend, ct)."""
+    if lam > 0.0:
+        if held == 2:
+            ct += pend
+        return 1, 0.0, ct
+    if held == 1:
+        return 2, dt, ct
+    return 0, 0.0, ct
+
+
 @njit(**ms.KERNEL_JIT)
 def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh,
                        n_coarse, n_sub, gamma_r, f_scale, Phi_c, E_c, Phi_f, E_f, b_f, psi_c,
@@ -80,6 +96,8 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = ncoarse = 0.0
         ct1 = ct2 = vimp1 = vimp2 = 0.0
+        held1 = held2 = 0
+        pend1 = pend2 = 0.0
         last = -1.0
         for jc in range(n_coarse):
             phase = jc * dtc
@@ -116,6 +134,7 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                         x[i] = xn[i]
                     ncoarse += 1.0
                     nsteps += 1.0
+                    held1 = held2 = 0
                     smin, smax = extrema(s0, v0, x[n], x[N + n], dtc, smin, smax)
                     if contact != 0:
                         contact, imp1, imp2, peak, last = contact_step(
@@ -150,6 +169,8 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                         l1 = max((1.0 + e1) * max(wv0, 0.0) / G, wvend / Gv, 0.0)
                     if g2 + wend <= 0.0:
                         l2 = max((1.0 + e2) * max(-wv0, 0.0) / G, -wvend / Gv, 0.0)
+                    held1, pend1, ct1 = _resting(l1, dtf, held1, pend1, ct1)
+                    held2, pend2, ct2 = _resting(l2, dtf, held2, pend2, ct2)
                 else:
                     l1, l2 = two_stop_impulses(Gf, g1 - wend, g2 + wend)
                 P = l2 - l1

@@ -71,7 +71,7 @@ K_HIST = 4  # history rows written
 K_NEXT_QUIET = 5  # first period at which a quiet period may be signalled again
 K_IMPACTED = 6  # 1 if a period had impacts since the last quiet signal (or the start)
 K_METHOD = 7  # first entry a method may use for its own state
-KST_SIZE = 16
+KST_SIZE = 18
 
 # --------------------------------------------------------------------------- period-end codes
 

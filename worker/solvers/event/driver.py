@@ -40,18 +40,6 @@ class EventRun(KernelRun):
         mono.compile_monodromy()
 
     @classmethod
-    def check_point(cls, sys_: System, settings: SolverSettings) -> None:
-        """Refuse a coefficient of restitution > 0: the event method's impacts are plastic
-        (a rebounding tip's accumulating impacts are not built into it)."""
-        p = sys_.params
-        if p.elastic:
-            raise ValueError(
-                f"method event runs plastic impacts only, got a coefficient of restitution "
-                f"{p.e1:g} at stop 1 and {p.e2:g} at stop 2; restitution > 0 needs method "
-                "euler or exponential"
-            )
-
-    @classmethod
     def check_options(cls, event_tol: float = DEFAULT_EVENT_TOL, **others: object) -> float:
         """Validated ``event_tol``; other options are refused (the event budget is the solver
         setting ``max_events_per_period``)."""
@@ -89,7 +77,7 @@ class EventRun(KernelRun):
             *pm.measure_tables(ea.lam, ea.RV, ea.nk, p.gamma_r), ea.D, ea.fidx, ea.fcs, ea.cosg,
             ea.sing,
             self.minvx, sys_.G, p.g1, p.g2, self.bilateral, N,
-            self.spp, p.gamma_r, self.f_scale, event_tol, self.max_events,
+            self.spp, p.gamma_r, self.f_scale, event_tol, self.max_events, p.e1, p.e2,
         )  # fmt: skip
         cplx = [np.zeros(nzm, dtype=complex) for _ in range(6)]  # al, ae, c1, c2, cw, Ew
         self.work = (
@@ -148,7 +136,8 @@ class EventRun(KernelRun):
         τ = 0), if it is stuck there until then. None for one that starts leaving a stop, where
         a history is being recorded (left alone), the log overflows or the replay refuses."""
         self.reset(x0)
-        exact = exact and self.hist.shape[0] == 0
+        # the replay's saltation matrices are those of plastic impacts
+        exact = exact and self.hist.shape[0] == 0 and not self.sys.params.elastic
         from_stop = self.kst[ek.K_PENDING] > 0.0
         if self.kst[ek.K_PENDING] < 0.0 or self.kst[ek.K_SKIP_ON] != 0.0:
             exact = False

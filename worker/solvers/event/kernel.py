@@ -61,15 +61,35 @@ K_SKIP_REM = ms.K_METHOD + 3
 K_PENDING = ms.K_METHOD + 4  # >0: impact at once at this stop; <0: stick-or-leave after one
 K_EVLOG = ms.K_METHOD + 5  # event log rows written
 K_SYNC = ms.K_METHOD + 6  # 1: the modal coefficients (al) are the state y's, carried over
+# the rebound sequence in progress (restitution): its stop (0 none), the time of its last
+# rebound from the current period's start, that impact's approach velocity, rebounds in it
+K_REB_STOP = ms.K_METHOD + 7
+K_REB_T = ms.K_METHOD + 8
+K_REB_V = ms.K_METHOD + 9
+K_REB_RUN = ms.K_METHOD + 10
+
+# A rebound sequence is passed to its limit once the time left to its accumulation point is
+# below this fraction of the period: from there on the limit state (the tip at rest on the
+# stop, the stuck regime) is exact up to the change of the tip's acceleration over that time,
+# far below the event tolerance's effect on the state (docs/solvers.md, "Restitution").
+ACC_TIME = 1e-7
+# Two consecutive rebounds belong to one geometric sequence (constant acceleration towards the
+# stop) when the second approach velocity is e times the first to within this.
+GEOMETRIC = 1e-2
+# Rebounds of a converging geometric sequence are not charged to the event budget (it needs
+# log(ACC_TIME)/log(e) of them, ~1,400 at e = 0.99) up to this many in one sequence.
+MAX_SEQUENCE = 100_000
 
 #: Columns of the event log (``history["events"]`` of method ``event``), described.
 EVENT_FIELDS = {
     "tau": "non-dimensional time tau of the event",
-    "kind": "event kind: 1 impact, 2 release",
+    "kind": "event kind: 1 impact, 2 release, 3 the accumulation point of a rebound sequence",
     "stop": "stop index (1 or 2)",
     "residual": "residual of the event condition at the located time (gap over clearance at "
-    "an impact, contact force over its scale at a release)",
-    "impulse": "contact impulse of the event",
+    "an impact, contact force over its scale at a release; at an accumulation point the time "
+    "from the sequence's last impact to it, over the period)",
+    "impulse": "contact impulse of the event (at an accumulation point the sequence's "
+    "remaining impulses summed)",
 }
 EV_COLS = len(EVENT_FIELDS)
 
@@ -362,6 +382,24 @@ def _opened(contact, a, ln, RV, lam, nk0, g1, g2, w0, d0, w1, d1, cw):
 
 
 @njit(cache=True, nogil=True)
+def time_to_accumulation(v_prev, v, flight, e):
+    """The time from an impact to the accumulation point of its rebound sequence, or -1 if
+    the impacts are not one converging geometric sequence.
+
+    ``v_prev`` and ``v`` are the approach velocities (towards the stop) of two consecutive
+    impacts at one stop, ``flight`` the time between them, ``e`` the stop's restitution. Under
+    a constant acceleration ``a`` towards the stop a tip leaving at ``e v_prev`` returns at
+    ``v = e v_prev`` after ``2 e v_prev / a``; so ``a = (v + e v_prev)/flight``, and the
+    flights after the impact at ``v`` sum to ``2 e v / (a (1 - e))`` (``docs/solvers.md``)."""
+    if not (0.0 < e < 1.0) or v_prev <= 0.0 or v <= 0.0 or flight <= 0.0:
+        return -1.0
+    if abs(v - e * v_prev) > GEOMETRIC * e * v_prev:
+        return -1.0
+    a = (v + e * v_prev) / flight
+    return 2.0 * e * v / (a * (1.0 - e))
+
+
+@njit(cache=True, nogil=True)
 def stick_or_leave(y, k, bilateral, Pin, Qout, R, RV, Vi, lam, nk, N, g1, g2, h, ye, x, x2, a,
                    cw):  # fmt: skip
     """After an impact at stop k: stick if the contact force is compressive (or zero and
@@ -458,8 +496,8 @@ def _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact):
 def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh, evlog,
                  nzr, nk, eh, SP, lam, V, Vi, R, RV, B4, Pin, Qout, H, C, dint, dcm, nd, D, fidx,
                  fcs, cosg, sing, MinvX, G, g1, g2, bilateral, N, n_grid, gamma_r, f_scale,
-                 event_tol, max_events_pp, lin_L, lin_xp, lin_amp, lin_gate, div_limit, tol, ye,
-                 al, ae, c1, c2, cw, Ew, x2, stack, w4, a0):  # fmt: skip
+                 event_tol, max_events_pp, e1, e2, lin_L, lin_xp, lin_amp, lin_gate, div_limit,
+                 tol, ye, al, ae, c1, c2, cw, Ew, x2, stack, w4, a0):  # fmt: skip
     """Advance the regime state ``y`` (and its full state ``x``) by up to ``n_periods``
     periods; returns (periods done, END code, period found).
 
@@ -480,6 +518,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
     skip_rem = kst[K_SKIP_REM]
     pending = int(kst[K_PENDING])
     contact = int(kst[ms.K_CONTACT])
+    reb_stop = int(kst[K_REB_STOP])
+    reb_t = kst[K_REB_T]
+    reb_v = kst[K_REB_V]
+    reb_run = kst[K_REB_RUN]
     record = hist.shape[0] > 0
     # events are logged wherever a log is given: with a history, or alone for the exact
     # monodromy matrix (monodromy.py)
@@ -530,19 +572,44 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                                                             j * h + t - pos0, rc0, rs0, rc, rs,
                                                             h0, h1, h2, h3, vv, vb)  # fmt: skip
                         seg = False
-                    ev_period += 1
-                    if ev_period > max_events_pp:
-                        failed = ms.END_CHATTER
-                        break
                     kk = pending
                     wu = _rowa(RV, 0, R_W, al, nkr)
                     wd = _rowa(RV, 0, R_WD, al, nkr)
+                    # Newton's law: a tip approaching a stop of restitution e > 0 rebounds,
+                    # unless its rebounds accumulate (then the limit: at rest on the stop)
+                    ek = e1 if kk == 1 else e2
+                    vin = wd if kk == 1 else -wd
+                    rebound = ek > 0.0 and vin > 0.0 and not bilateral
+                    left = -1.0  # time left to the accumulation point
+                    ts = 0.0
+                    if rebound and reb_stop == kk:
+                        left = time_to_accumulation(reb_v, vin, j * h + t - reb_t, ek)
+                        reb_run = reb_run + 1.0 if left >= 0.0 else 0.0
+                        if left >= 0.0 and left <= ACC_TIME * T:
+                            rebound = False
+                    if left < 0.0 or reb_run > MAX_SEQUENCE:
+                        ev_period += 1
+                        if ev_period > max_events_pp:
+                            failed = ms.END_CHATTER
+                            break
                     gap = g1 - wu if kk == 1 else g2 + wu
                     resid = gap / max(g1 if kk == 1 else g2, 1e-300)
                     P = -wd / G
+                    if rebound:
+                        P *= 1.0 + ek
                     for q in range(nkr):
                         al[q] += D[q] * P
                     have = False
+                    if rebound:
+                        # it leaves once the gap has opened above round-off; a rebound too
+                        # small for that has accumulated (the plastic impulse instead)
+                        _coef(RV, 0, R_W, al, nkr, -1.0 if kk == 1 else 1.0, cw)
+                        ts = rt.skip_start(cw, lam[0], nkr, g1 if kk == 1 else g2, h, True)
+                        if ts < 0.0:
+                            rebound = False
+                            for q in range(nkr):
+                                al[q] -= D[q] * (P * ek / (1.0 + ek))
+                            P = -wd / G
                     imp_l = abs(P)
                     nimpacts += 1.0
                     if contact != kk:
@@ -557,6 +624,29 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     contact = kk
                     if logev:
                         _log_event(evlog, kst, tau_now, 1.0, kk, resid, imp_l)
+                    if rebound:
+                        pending = 0
+                        skip_on = True
+                        skip_stop = kk
+                        skip_rem = ts
+                        if reb_stop != kk:
+                            reb_run = 0.0
+                        reb_stop = kk
+                        reb_t = j * h + t
+                        reb_v = vin
+                        if record:
+                            _state(V, 0, al, nkr, nz, y)
+                            _record(hist, xh, kst, tau_now, R, 0, y, nz,
+                                    imp_l if kk == 1 else 0.0, imp_l if kk == 2 else 0.0, kk,
+                                    Qout, N, x)  # fmt: skip
+                        continue
+                    if left >= 0.0 and logev:
+                        # the sequence's limit: the remaining impulses (1 + e)/(1 - e)·e v/G
+                        # summed, at the accumulation point
+                        _log_event(evlog, kst, tau_now + left, 3.0, kk, left / T,
+                                   2.0 * ek * vin / ((1.0 - ek) * G))  # fmt: skip
+                    reb_stop = 0
+                    reb_run = 0.0
                     pending = -kk
                 if pending < 0:
                     kk = -pending
@@ -796,6 +886,11 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                      nsteps, nimpacts, ncoarse, r)  # fmt: skip
         ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
         _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
+        kst[K_REB_STOP] = reb_stop
+        reb_t -= T
+        kst[K_REB_T] = reb_t
+        kst[K_REB_V] = reb_v
+        kst[K_REB_RUN] = reb_run
         kst[ms.K_PERIOD] += 1.0
         _state(V, r, al, nk[r], nzr[r], y)
         if failed != ms.END_NONE:
