@@ -678,4 +678,4 @@ def test_restitution_cost_times_every_setting_against_the_reference(tmp_path: Pa
     md = (tmp_path / "restitution_cost.md").read_text()
     for method, spp in rc.LADDER:
         assert f"| {method} | {spp} |" in md
-    assert "reference `exponential` at 16384 steps" in md and "outcomes:" in md
+    assert "reference the default (`event`) at e = 0.5" in md and "outcomes:" in md
