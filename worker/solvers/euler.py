@@ -59,7 +59,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = 0.0
-        ct1 = ct2 = vimp1 = vimp2 = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = en1 = en2 = 0.0
         last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
@@ -105,8 +105,12 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 h2 += dt * sbv * cph
                 h3 -= dt * sbv * sph
             if l1 > 0.0 or l2 > 0.0:
-                ct1, ct2, vimp1, vimp2 = tally_impulses(l1, l2, contact, ms.dot(W, x[N:], N),
-                                                        dt, ct1, ct2, vimp1, vimp2)  # fmt: skip
+                # the impulse takes the tip from the free velocity Wᵀq_f to Wᵀq⁺ (xn, now)
+                vp = ms.dot(W, xn[N:], N)
+                ct1, ct2, vimp1, vimp2, en1, en2 = tally_impulses(
+                    l1, l2, contact, ms.dot(W, x[N:], N), vp - G * P, vp, G, dt, ct1, ct2, vimp1,
+                    vimp2, en1, en2,
+                )  # fmt: skip
             for i in range(nx):
                 x[i] = xn[i]
             v1 = x[N + n]
@@ -125,7 +129,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, 0.0, contact)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         kst[ms.K_CONTACT] = contact  # read at the next period's start, this batch or the next
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

@@ -504,6 +504,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         pos0 = rc0 = rs0 = 0.0
         nsteps = ncoarse = nimpacts = imp1 = imp2 = peak = 0.0
         ct1 = ct2 = vimp1 = vimp2 = 0.0  # time stuck on each stop, approach velocities
+        en1 = en2 = 0.0  # energy the impacts took at each stop: ½ v⁻²/G each (plastic)
         last = -1.0
         known = -1.0  # _magnitude(al) where already known (the forcing phase is reset below)
         for j in range(n_grid):
@@ -545,6 +546,10 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                     have = False
                     imp_l = abs(P)
                     nimpacts += 1.0
+                    if kk == 1:
+                        en1 += 0.5 * wd * wd / G
+                    else:
+                        en2 += 0.5 * wd * wd / G
                     if contact != kk:
                         if kk == 1:
                             imp1 += 1.0
@@ -794,7 +799,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
             have = False
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, nimpacts, ncoarse, r)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
         kst[ms.K_PERIOD] += 1.0
         _state(V, r, al, nk[r], nzr[r], y)
