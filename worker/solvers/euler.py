@@ -94,6 +94,9 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
             else:
                 l1, l2 = two_stop_impulses(gdt, c1, c2)
             P = l2 - l1
+            vm = 0.0
+            if l1 > 0.0 or l2 > 0.0:
+                vm = ms.dot(W, xn[N:], N)  # the free velocity Wᵀq_f: the impulse's v⁻
             for i in range(N):
                 xn[N + i] += MinvX[i] * P
                 xn[i] = x[i] + dt * xn[N + i]
@@ -105,10 +108,8 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 h2 += dt * sbv * cph
                 h3 -= dt * sbv * sph
             if l1 > 0.0 or l2 > 0.0:
-                # the impulse takes the tip from the free velocity Wᵀq_f to Wᵀq⁺ (xn, now)
-                vp = ms.dot(W, xn[N:], N)
                 ct1, ct2, vimp1, vimp2, en1, en2 = tally_impulses(
-                    l1, l2, contact, ms.dot(W, x[N:], N), vp - G * P, vp, G, dt, ct1, ct2, vimp1,
+                    l1, l2, contact, ms.dot(W, x[N:], N), vm, vm + G * P, G, dt, ct1, ct2, vimp1,
                     vimp2, en1, en2,
                 )  # fmt: skip
             for i in range(nx):
