@@ -266,8 +266,9 @@ def _with_cells(
     """``res`` with its chain fields: N, Γ_j,lin and the proven Γ_j of every cell (the closed
     form at a linear point, the orbit's p periods run again at a periodic one)."""
     res.cells = chain.n_cells
-    # the chain kernels measure neither the time on the stops nor the approach velocities
+    # the chain's impact observables are not reported (its kernels sum them over the cells)
     res.contact_fraction = res.contact_fraction_se = res.impact_velocity = None
+    res.impact_energy = res.impact_energy_se = res.impact_energy_share = None
     lin = cell_linear_db(chain)
     res.cell_transmittance_linear_db = lin
     if res.outcome == "linear":

@@ -186,6 +186,14 @@ def _print_point(result: Any) -> None:
     if result.impact_velocity is not None and any(v is not None for v in result.impact_velocity):
         v1, v2 = ("-" if v is None else f"{v:.4g}" for v in result.impact_velocity)
         print(f"impact velocity     stop 1: {v1}, stop 2: {v2} (mean approach, B per τ)")
+    if result.impact_energy is not None:
+        e1, e2 = result.impact_energy
+        ses = result.impact_energy_se
+        pm = ("", "") if ses is None else tuple(f" ± {v:.2g}" for v in ses)
+        share = result.impact_energy_share
+        of = "" if share is None else f" ({100 * share:.3g} % of all dissipated)"
+        print(f"impact energy       stop 1: {e1:.4g}{pm[0]}, stop 2: {e2:.4g}{pm[1]} per period"
+              + of)  # fmt: skip
     print(f"steps               {result.steps} ({result.contact_steps} with contact)")
     print(f"wall time           {result.wall_s * 1e3:.2f} ms ({result.method})")
 

@@ -91,7 +91,8 @@ class Outputs(StrictModel):
     effective_mass: ``theta_eff`` (the effective mass), ``theta_eff_slope`` (the phase-portrait
     ratio θ_ps); response: ``outcome``, ``may_be_transient``, ``impacting_periods``,
     ``response_period``, ``impacts_per_period``, ``contact_fraction`` (and its standard
-    error), ``impact_velocity``, ``floquet_multiplier``, ``periods``,
+    error), ``impact_velocity``, ``impact_energy`` (and its standard error),
+    ``impact_energy_share``, ``floquet_multiplier``, ``periods``,
     ``steps``; contact (off by default: diagnostics that cost storage, not insight):
     ``peak_impulse``, ``contact_steps``, ``coarse_steps``, ``steady_period``.
     """

@@ -254,6 +254,26 @@ VARIABLES: dict[str, Variable] = {
         "mean velocity of the tip towards stop at the impacts counted there (in units of B "
         "per unit tau); missing where the stop had none",
     ),
+    "impact_energy": Variable(
+        "response", "float", "1",
+        "energy dissipated by the impacts at stop per excitation period, the sum over its "
+        "impulses of (v-^2 - v+^2) / (2 G) with v the tip velocity just before and after "
+        "(plastic: v-^2 / (2 G)), in units of rho A l B^2 omega_b^2 (docs/model.md section "
+        "6): exact over the orbit of a periodic point, 0 at a linear one, the mean over the "
+        "stationary span's windows at an irregular or unsettled one",
+    ),
+    "impact_energy_se": Variable(
+        "response", "float", "1",
+        "standard error of impact_energy at an irregular or unsettled point (the windows as "
+        "batches); missing elsewhere",
+    ),
+    "impact_energy_share": Variable(
+        "response", "float", "1",
+        "share of the energy the cell dissipates per period that the impacts take: their energy "
+        "over the work of the forcing, which the dashpots and the impacts dissipate (full "
+        "coupling only; missing in paper coupling, which has no energy balance, and where "
+        "the forcing does no work); 0 at a linear point",
+    ),
     "floquet_multiplier": Variable(
         "response", "float", "1",
         "modulus of the dominant Floquet multiplier of the steady response over its period: "
@@ -343,6 +363,8 @@ STOP_VARIABLES: tuple[str, ...] = (
     "contact_fraction",
     "contact_fraction_se",
     "impact_velocity",
+    "impact_energy",
+    "impact_energy_se",
 )
 
 

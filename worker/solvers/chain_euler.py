@@ -93,7 +93,8 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = 0.0
-        ct1 = ct2 = vimp1 = vimp2 = 0.0  # summed over the cells (the engine's last-cell view)
+        # summed over the cells (the engine's last-cell view; a chain reports none of them)
+        ct1 = ct2 = vimp1 = vimp2 = en1 = en2 = 0.0
         last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
@@ -133,9 +134,10 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                 P = lam2[c] - lam1[c]
                 if P != 0.0:  # M⁻¹X_j lives on cell j's block only
                     off = c * b
-                    ct1, ct2, vimp1, vimp2 = tally_impulses(
-                        lam1[c], lam2[c], contact[c], ms.dot(W[c], x[nd + off :], b), dt, ct1,
-                        ct2, vimp1, vimp2,
+                    vm = ms.dot(W[c], xn[nd + off :], b)  # the free velocity, before it
+                    ct1, ct2, vimp1, vimp2, en1, en2 = tally_impulses(
+                        lam1[c], lam2[c], contact[c], ms.dot(W[c], x[nd + off :], b), vm,
+                        vm + G[c] * P, G[c], dt, ct1, ct2, vimp1, vimp2, en1, en2,
                     )  # fmt: skip
                     for i in range(b):
                         xn[nd + off + i] += MinvX[c, i] * P
@@ -190,7 +192,7 @@ def chain_euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
             regime = 3.0 * regime + contact[c]
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, 0.0, regime)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         kst[ms.K_CONTACT] = regime
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

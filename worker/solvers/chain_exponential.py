@@ -181,14 +181,15 @@ def _track(cell_ext, x, v0, xn, nd, b, ncell, dt):
 @njit(**ms.KERNEL_JIT)
 def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, xh,
                              n_coarse, n_sub, gamma_r, f_scale, Phi_c, E_c, Phi_f, E_f, B_f,
-                             Gf, coupled, psi_c, psi_f, psib_f, gl_c, gl_f, glb_f, W, d,
+                             Gf, G, coupled, psi_c, psi_f, psib_f, gl_c, gl_f, glb_f, W, d,
                              MinvX_s, g1, g2, margin, adaptive, contact, lam1, lam2, c1, c2,
                              P, P0, glb0, cell_ext, xv, use_lemke, lcp_M, lcp_q, lcp_T,
                              lcp_basis, lcp_cand, lcp_B, lcp_xb, lcp_z, lin_L, lin_xp, lin_amp,
                              lin_gate, div_limit, tol, xn):  # fmt: skip
     """Advance up to ``n_periods`` periods of the chain; returns (periods done, END code,
     period found). ``W`` (N, b): cell j's tip row on its own block of b = n + 1 coordinates;
-    ``B_f`` (N, nx): the fine step's propagated unit impulse at cell j's stops; ``contact`` (N)
+    ``B_f`` (N, nx): the fine step's propagated unit impulse at cell j's stops; ``G`` (N): the
+    cells' G, the tip velocity a unit impulse gives at once; ``contact`` (N)
     holds each cell's contact episode between batches; ``cell_ext`` (N × 2, or empty: off)
     accumulates each cell's outer-mass extrema, min and max, as the period rows do for the last
     cell (``ChainSteppingRun.cell_ranges``)."""
@@ -212,7 +213,8 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = ncoarse = 0.0
-        ct1 = ct2 = vimp1 = vimp2 = 0.0  # summed over the cells (the engine's last-cell view)
+        # summed over the cells (the engine's last-cell view; a chain reports none of them)
+        ct1 = ct2 = vimp1 = vimp2 = en1 = en2 = 0.0
         last = -1.0
         for jc in range(n_coarse):
             phase = jc * dtc
@@ -302,9 +304,11 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
                     P[c] = Pc
                     if Pc != 0.0:
                         solved = True
-                        ct1, ct2, vimp1, vimp2 = tally_impulses(
-                            lam1[c], lam2[c], contact[c], ms.dot(W[c], x[nd + c * b :], b), dtf,
-                            ct1, ct2, vimp1, vimp2,
+                        # at once at the step's start, on cell c's block only
+                        vm = ms.dot(W[c], x[nd + c * b :], b)
+                        ct1, ct2, vimp1, vimp2, en1, en2 = tally_impulses(
+                            lam1[c], lam2[c], contact[c], vm, vm, vm + G[c] * Pc, G[c], dtf, ct1,
+                            ct2, vimp1, vimp2, en1, en2,
                         )  # fmt: skip
                         for i in range(nx):
                             xn[i] += B_f[c, i] * Pc
@@ -350,7 +354,7 @@ def chain_exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, sam
             regime = 3.0 * regime + contact[c]
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, ncoarse, regime)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         kst[ms.K_CONTACT] = regime
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,
@@ -480,7 +484,7 @@ class ChainExponentialRun(ChainSteppingRun):
         self.coupled = coupled
         self.arrays = (
             n_coarse, n_sub, gamma_r, self.f_scale, c(Pc[:nx, :nx]), c(Pc[:nx, nx:]),
-            c(Pf[:nx, :nx]), c(Pf[:nx, nx:]), c(B_f.T), c(Gf), coupled, psi_c, psi_f,
+            c(Pf[:nx, :nx]), c(Pf[:nx, nx:]), c(B_f.T), c(Gf), G, coupled, psi_c, psi_f,
             c(psi_f[:, :nx] @ bvec), gl_c, gl_f, c(gl_f[:, :, :nx] @ bvec), W, cs.cells[-1].d,
             c(MinvX[:, -1]), g1, g2, settings.near_margin, settings.adaptive, self.contact,
             np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N),

@@ -59,7 +59,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = 0.0
-        ct1 = ct2 = vimp1 = vimp2 = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = en1 = en2 = 0.0
         last = -1.0
         for js in range(spp):
             cph = math.cos(gamma_r * js * dt)
@@ -94,6 +94,9 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
             else:
                 l1, l2 = two_stop_impulses(gdt, c1, c2)
             P = l2 - l1
+            vm = 0.0
+            if l1 > 0.0 or l2 > 0.0:
+                vm = ms.dot(W, xn[N:], N)  # the free velocity Wᵀq_f: the impulse's v⁻
             for i in range(N):
                 xn[N + i] += MinvX[i] * P
                 xn[i] = x[i] + dt * xn[N + i]
@@ -105,8 +108,10 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 h2 += dt * sbv * cph
                 h3 -= dt * sbv * sph
             if l1 > 0.0 or l2 > 0.0:
-                ct1, ct2, vimp1, vimp2 = tally_impulses(l1, l2, contact, ms.dot(W, x[N:], N),
-                                                        dt, ct1, ct2, vimp1, vimp2)  # fmt: skip
+                ct1, ct2, vimp1, vimp2, en1, en2 = tally_impulses(
+                    l1, l2, contact, ms.dot(W, x[N:], N), vm, vm + G * P, G, dt, ct1, ct2, vimp1,
+                    vimp2, en1, en2,
+                )  # fmt: skip
             for i in range(nx):
                 x[i] = xn[i]
             v1 = x[N + n]
@@ -125,7 +130,7 @@ def euler_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, hist, 
                 record_step(hist, xh, kst, period * T + (js + 1) * dt, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, 0.0, contact)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         kst[ms.K_CONTACT] = contact  # read at the next period's start, this batch or the next
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

@@ -95,7 +95,7 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
         smax = -np.inf
         h0 = h1 = h2 = h3 = vv = vb = 0.0
         imp1 = imp2 = peak = nsteps = ncontact = ncoarse = 0.0
-        ct1 = ct2 = vimp1 = vimp2 = 0.0
+        ct1 = ct2 = vimp1 = vimp2 = en1 = en2 = 0.0
         held1 = held2 = 0
         pend1 = pend2 = 0.0
         last = -1.0
@@ -175,9 +175,12 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                     l1, l2 = two_stop_impulses(Gf, g1 - wend, g2 + wend)
                 P = l2 - l1
                 if P != 0.0:
-                    ct1, ct2, vimp1, vimp2 = tally_impulses(
-                        l1, l2, contact, ms.dot(W, x[N:], N), dtf, ct1, ct2, vimp1, vimp2
-                    )
+                    # the impulse acts at once at the step's start: Wᵀq → Wᵀq + G P
+                    vm = ms.dot(W, x[N:], N)
+                    ct1, ct2, vimp1, vimp2, en1, en2 = tally_impulses(
+                        l1, l2, contact, vm, vm, vm + G * P, G, dtf, ct1, ct2, vimp1, vimp2, en1,
+                        en2,
+                    )  # fmt: skip
                     for i in range(nx):
                         xn[i] += b_f[i] * P
                     v0 += MinvX_s * P  # Moreau: the step's trajectory starts after the impulse
@@ -205,7 +208,7 @@ def exponential_kernel(x, kst, ring, n_periods, measure, checks, rows, samples, 
                     record_step(hist, xh, kst, tau_c + (js + 1) * dtf, x, nx, W, d, N, n, l1, l2)
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, ncontact, ncoarse, contact)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         kst[ms.K_CONTACT] = contact  # read at the next period's start, this batch or the next
         kst[ms.K_PERIOD] += 1.0
         code, p = ms.period_end(x, nx, rows, samples, k, ring, kst, lin_L, lin_xp, lin_amp,

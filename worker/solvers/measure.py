@@ -58,7 +58,9 @@ M_CT1 = 19  # time on stop 1 in the period (event: stuck; time stepping: steps h
 M_CT2 = 20  # … on stop 2
 M_VIMP1 = 21  # sum of the tip's approach velocities of the impacts counted at stop 1
 M_VIMP2 = 22  # … at stop 2
-ROW = 23
+M_EN1 = 23  # energy the impulses at stop 1 took in the period: Σ ½(v⁻² − v⁺²)/G
+M_EN2 = 24  # … at stop 2
+ROW = 25
 
 # --------------------------------------------------------------------------- kernel state
 
@@ -147,13 +149,16 @@ def close_row(rows, k, smin, smax, h, vv, vb, imp1, imp2, peak, last, nsteps, nc
 
 
 @njit(cache=True, nogil=True)
-def close_impacts(rows, k, ct1, ct2, vimp1, vimp2):
-    """Write a period's time on each stop and the sums of its impacts' approach velocities
-    (after :func:`close_row`; a kernel that does not measure them leaves them 0)."""
+def close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2):
+    """Write a period's time on each stop, the sums of its impacts' approach velocities and
+    the energy its impulses took at each stop (after :func:`close_row`; a kernel that does not
+    measure them leaves them 0)."""
     rows[k, M_CT1] = ct1
     rows[k, M_CT2] = ct2
     rows[k, M_VIMP1] = vimp1
     rows[k, M_VIMP2] = vimp2
+    rows[k, M_EN1] = en1
+    rows[k, M_EN2] = en2
 
 
 @njit(cache=True, nogil=True, inline="always")

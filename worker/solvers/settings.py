@@ -186,7 +186,14 @@ class SolverSettings:
 # PointResult fields kept out of records (arrays: records stay JSON-able and column-able)
 _NOT_IN_RECORD = ("history", "final_state")
 #: A result's fields with one value per stop (stop 1, stop 2): lists in a record.
-_PER_STOP = ("impacts_per_period", "contact_fraction", "contact_fraction_se", "impact_velocity")
+_PER_STOP = (
+    "impacts_per_period",
+    "contact_fraction",
+    "contact_fraction_se",
+    "impact_velocity",
+    "impact_energy",
+    "impact_energy_se",
+)
 #: A chain's fields of a result (absent from a unit cell's record).
 CHAIN_FIELDS = ("cells", "cell_transmittance_db", "cell_transmittance_linear_db")
 
@@ -228,6 +235,11 @@ class PointResult:
     unsettled point the mean over the stationary span's windows with its
     standard error ``contact_fraction_se`` (windows as batches). ``impact_velocity`` is the
     mean approach velocity of the impacts counted at each stop (``None`` where a stop had none).
+    ``impact_energy`` is the energy the impulses at each stop take per excitation period,
+    Σ ½(v⁻² − v⁺²)/G (exact over the orbit, 0 at a linear point, the windows' mean with
+    standard error ``impact_energy_se`` at an irregular or unsettled one), and
+    ``impact_energy_share`` their share of all the energy dissipated, the forcing's work
+    (``full`` coupling only: ``None`` in ``paper``, which has no energy balance).
     Chains leave them ``None``.
 
     ``final_state`` is ``[u; q]`` at a period boundary (forcing phase 0) of the reported
@@ -262,6 +274,9 @@ class PointResult:
     contact_fraction: tuple[float, float] | None = None
     contact_fraction_se: tuple[float, float] | None = None
     impact_velocity: tuple[float | None, float | None] | None = None
+    impact_energy: tuple[float, float] | None = None
+    impact_energy_se: tuple[float, float] | None = None
+    impact_energy_share: float | None = None
     cells: int | None = None
     cell_transmittance_db: list[float] | None = None
     cell_transmittance_linear_db: list[float | None] | None = None

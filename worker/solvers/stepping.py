@@ -52,12 +52,14 @@ def contact_step(l1, l2, phase, contact, imp1, imp2, peak, last, W, x, N, g1, g2
 
 
 @njit(cache=True, nogil=True, inline="always")
-def tally_impulses(l1, l2, contact, wv, dt, ct1, ct2, vimp1, vimp2):
+def tally_impulses(l1, l2, contact, wv, vm, vp, G, dt, ct1, ct2, vimp1, vimp2, en1, en2):
     """A step's impulses in the period's impact tallies (``measure.close_impacts``): a step
     whose impulse holds the tip on a stop is ``dt`` on it; an impulse that begins a contact
     episode (at a stop the tip is not on already: ``contact``, before :func:`contact_step`)
     adds the tip's approach velocity ``wv`` (towards stop 1 positive, Wᵀq at the step's
-    start)."""
+    start); and every impulse takes the energy ``½(v⁻² − v⁺²)/G`` from the tip's velocity
+    ``vm`` just before it to ``vp`` just after (docs/model.md §6), booked at the stop whose
+    impulse is the larger."""
     if l1 > 0.0:
         ct1 += dt
         if contact != 1:
@@ -66,7 +68,13 @@ def tally_impulses(l1, l2, contact, wv, dt, ct1, ct2, vimp1, vimp2):
         ct2 += dt
         if contact != 2:
             vimp2 -= wv
-    return ct1, ct2, vimp1, vimp2
+    # factored: where the tip rests on a stop v⁻ ≈ v⁺, and v⁻² − v⁺² would cancel
+    de = 0.5 * (vm - vp) * (vm + vp) / G
+    if l1 >= l2:
+        en1 += de
+    else:
+        en2 += de
+    return ct1, ct2, vimp1, vimp2, en1, en2
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -243,7 +243,7 @@ def _fold_rows(rows: np.ndarray, cur: np.ndarray, count: int) -> bool:
         for j in range(ms.M_S_RE, ms.M_IMP2 + 1):
             cur[j] += rows[i, j]
         cur[ms.M_PEAK] = max(cur[ms.M_PEAK], rows[i, ms.M_PEAK])
-        for j in range(ms.M_CT1, ms.M_VIMP2 + 1):
+        for j in range(ms.M_CT1, ms.M_EN2 + 1):
             cur[j] += rows[i, j]
         if rows[i, ms.M_LAST_IMPACT] >= 0.0:
             cur[ms.M_LAST_IMPACT] = count + i + rows[i, ms.M_LAST_IMPACT]
@@ -262,7 +262,8 @@ class _Windows:
     harm: list[np.ndarray] = field(default_factory=list)  # S_re, S_im, Sb_re, Sb_im, VV, VB
     measured: list[bool] = field(default_factory=list)
     last_impact: list[float] = field(default_factory=list)  # position in the window, -1 none
-    # time on stop 1 and 2, approach velocities summed at stop 1 and 2
+    # time on stop 1 and 2, approach velocities summed at stop 1 and 2, the impacts' energy
+    # at stop 1 and 2
     contact: list[np.ndarray] = field(default_factory=list)
     cur: np.ndarray = field(default_factory=lambda: np.zeros(ms.ROW))
     count: int = 0
@@ -313,7 +314,7 @@ class _Windows:
         self.harm.append(c[ms.M_S_RE : ms.M_VB + 1].copy())
         self.measured.append(self.all_measured)
         self.last_impact.append(c[ms.M_LAST_IMPACT])
-        self.contact.append(c[ms.M_CT1 : ms.M_VIMP2 + 1].copy())
+        self.contact.append(c[ms.M_CT1 : ms.M_EN2 + 1].copy())
         self._open()
 
     def __len__(self) -> int:

@@ -92,6 +92,9 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
             outcome="linear", transmittance_db=ss.transmittance_db, transmittance_db_se=None,
             amplitude=ss.amplitude, theta_eff=ss.theta_eff, theta_eff_slope=ss.theta_eff,
             response_period=1, impacts_per_period=(0.0, 0.0), contact_fraction=(0.0, 0.0),
+            impact_energy=(0.0, 0.0),
+            # no impacts: none of the damping's work (ss.amplitude > 0: forced, damped)
+            impact_energy_share=0.0 if p.coupling == "full" and ss.amplitude > 0 else None,
             peak_impulse=0.0,
             floquet_multiplier=math.exp(tail.max_re * T), wall_s=0.0, reason="",
             method=settings.method, **common,
@@ -115,6 +118,12 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
                               float(rows[:, ms.M_CT2].sum() / (len(rows) * T))),
             impact_velocity=_approach(rows[:, ms.M_VIMP1].sum(), rows[:, ms.M_VIMP2].sum(),
                                       rows[:, ms.M_IMP1].sum(), rows[:, ms.M_IMP2].sum()),
+            impact_energy=(float(rows[:, ms.M_EN1].sum() / len(rows)),
+                           float(rows[:, ms.M_EN2].sum() / len(rows))),
+            impact_energy_share=impact_energy_share(
+                sys_, run.f_scale if run is not None else 1.0,
+                float(rows[:, ms.M_EN1].sum() + rows[:, ms.M_EN2].sum()), h[0], h[1],
+            ),
             peak_impulse=float(rows[:, ms.M_PEAK].max()),
             floquet_multiplier=_finite_or_none(orbit.multiplier), wall_s=0.0, reason="",
             method=settings.method, **common,
@@ -162,6 +171,33 @@ def run_point(make_run: Callable[[], KernelRun], sys_: System, tail: LinearTail,
     return res
 
 
+def forcing_work(sys_: System, f_scale: float, s_re: float, s_im: float) -> float:
+    """W_F = ∫ ṡ F_s dτ, the work of the forcing over whole periods of a response whose s
+    returns to its start, from the first harmonic ``S = s_re + i s_im = ∫ s e^{−iγ_rτ} dτ``
+    over them (docs/model.md §6): with ``F_s = a sin γ_rτ + b cos γ_rτ`` integration by parts
+    (the boundary term ``[s F_s]`` vanishes) gives ``−γ_r (a S_re + b S_im)``."""
+    a = f_scale * sys_.f_sin
+    b = f_scale * sys_.f_cos
+    return -sys_.params.gamma_r * (a * s_re + b * s_im)
+
+
+def impact_energy_share(sys_: System, f_scale: float, energy: float, s_re: float,
+                        s_im: float) -> float | None:  # fmt: skip
+    """The impacts' share ``energy / W_F`` of the energy the cell dissipates over whole periods
+    (:func:`forcing_work` from the same periods' harmonic). Only ``full`` coupling has the
+    energy balance that makes W_F the sum of the dissipations (docs/model.md §4, §6): None in
+    ``paper``, and where W_F is not positive beyond its rounding (no forcing; undamped without
+    impacts)."""
+    if sys_.params.coupling != "full":
+        return None
+    wf = forcing_work(sys_, f_scale, s_re, s_im)
+    g = sys_.params.gamma_r
+    size = f_scale * g * (abs(sys_.f_sin * s_re) + abs(sys_.f_cos * s_im))
+    if not wf > 1e-12 * size or not math.isfinite(wf):
+        return None
+    return float(energy / wf)
+
+
 def _approach(v1: float, v2: float, n1: float, n2: float) -> tuple[float | None, float | None]:
     """The mean approach velocity of the impacts at each stop (sums over counts; None where a
     stop had none)."""
@@ -188,9 +224,14 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
     # (windows as batches); the approach velocity over all the span's impacts
     T = 2.0 * math.pi / p.gamma_r
     ct = np.array([win.contact[i][:2] for i in span]) / (win.window * T)
-    vs = sum((win.contact[i] for i in span), np.zeros(4))
+    vs = sum((win.contact[i] for i in span), np.zeros(6))
     ni = sum((np.array(win.impacts[i]) for i in span), np.zeros(2))
     se = ct.std(axis=0, ddof=1) / math.sqrt(len(ct)) if len(ct) > 1 else None
+    # the impacts' energy per period, per window of the span: its mean and standard error
+    en = np.array([win.contact[i][4:6] for i in span]) / win.window
+    en_se = en.std(axis=0, ddof=1) / math.sqrt(len(en)) if len(en) > 1 else None
+    # the share from the span's measured windows: their energy over their forcing work
+    e_meas = sum(float(win.contact[i][4] + win.contact[i][5]) for i in span if win.measured[i])
     return PointResult(
         outcome=outcome, transmittance_db=db, transmittance_db_se=_finite_or_none(_se_db(st)),
         amplitude=st.mean,
@@ -201,6 +242,9 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
         contact_fraction=(float(ct[:, 0].mean()), float(ct[:, 1].mean())),
         contact_fraction_se=None if se is None else (float(se[0]), float(se[1])),
         impact_velocity=_approach(vs[2], vs[3], ni[0], ni[1]),
+        impact_energy=(float(en[:, 0].mean()), float(en[:, 1].mean())),
+        impact_energy_se=None if en_se is None else (float(en_se[0]), float(en_se[1])),
+        impact_energy_share=impact_energy_share(eng.sys, eng.run.f_scale, e_meas, h[0], h[1]),
         peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
         wall_s=0.0, reason=reason, method=eng.s.method, **common,
     )  # fmt: skip

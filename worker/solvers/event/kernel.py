@@ -546,6 +546,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
         pos0 = rc0 = rs0 = 0.0
         nsteps = ncoarse = nimpacts = imp1 = imp2 = peak = 0.0
         ct1 = ct2 = vimp1 = vimp2 = 0.0  # time stuck on each stop, approach velocities
+        en1 = en2 = 0.0  # energy the impacts took at each stop
         last = -1.0
         known = -1.0  # _magnitude(al) where already known (the forcing phase is reset below)
         for j in range(n_grid):
@@ -612,6 +613,14 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
                             P = -wd / G
                     imp_l = abs(P)
                     nimpacts += 1.0
+                    # the energy the impulse takes: ½(v⁻² − v⁺²)/G, v⁺ = −e v⁻ at a rebound
+                    taken = 0.5 * wd * wd / G
+                    if rebound:
+                        taken *= 1.0 - ek * ek
+                    if kk == 1:
+                        en1 += taken
+                    else:
+                        en2 += taken
                     if contact != kk:
                         if kk == 1:
                             imp1 += 1.0
@@ -884,7 +893,7 @@ def event_kernel(y, x, kst, ring, n_periods, measure, checks, rows, samples, his
             have = False
         ms.close_row(rows, k, smin, smax, (h0, h1, h2, h3), vv, vb, imp1, imp2, peak, last,
                      nsteps, nimpacts, ncoarse, r)  # fmt: skip
-        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2)
+        ms.close_impacts(rows, k, ct1, ct2, vimp1, vimp2, en1, en2)
         _save_state(kst, r, skip_on, skip_stop, skip_rem, pending, contact)
         kst[K_REB_STOP] = reb_stop
         reb_t -= T
