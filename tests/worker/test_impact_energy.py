@@ -144,10 +144,13 @@ def dissipation_by_quadrature(r, cell: CellParams) -> tuple[float, float, float]
     return work, visc, kinetic
 
 
-def test_the_forcings_work_is_the_dashpots_and_the_impacts_energy():
-    r = simulate_point(FULL, SolverSettings(method="event"), history_periods=1)
+@pytest.mark.parametrize("e", [0.0, 0.5])
+def test_the_forcings_work_is_the_dashpots_and_the_impacts_energy(e):
+    """Plastic impacts, and rebounds whose sequences accumulate (e = 0.5)."""
+    cell = dataclasses.replace(FULL, e1=e, e2=e)
+    r = simulate_point(cell, SolverSettings(method="event"), history_periods=1)
     assert r.outcome == "periodic" and r.response_period == 1
-    work, visc, kinetic = dissipation_by_quadrature(r, FULL)
+    work, visc, kinetic = dissipation_by_quadrature(r, cell)
     E = sum(r.impact_energy)
     assert kinetic == pytest.approx(E, rel=1e-12)
     # the balance over the orbit (measured: 2e-14), and W_F as the result forms it from the
