@@ -241,14 +241,19 @@ def test_point_engine_finds_the_last_impact_before_a_linear_proof() -> None:
     assert r.outcome == "linear" and r.periods > 1
     last = mod.last_impact(params, settings, r.periods)
     assert 1 <= last <= r.periods  # no impact after the proof
-    # the same period seen by the kernel's own counters: impacts in the last period of a run
-    # that long, none in the last period of one a period longer
+    # the same period seen in the kernel's history of a run's last period:
+    # impacts in the last period of a run that long, none in the last period of one a period
+    # longer
     quiet = dataclasses.replace(settings, early_stop=False, linear_tail=False, window=1)
     n = max(last, 2)
-    hits = mod.simulate_point(params, dataclasses.replace(quiet, max_periods=n))
-    assert sum(hits.impacts_per_period) > 0
-    after = mod.simulate_point(params, dataclasses.replace(quiet, max_periods=n + 1))
-    assert sum(after.impacts_per_period) == 0
+
+    def last_period_impacts(periods: int) -> float:
+        r = mod.simulate_point(params, dataclasses.replace(quiet, max_periods=periods),
+                               history_periods=1)  # fmt: skip
+        return float(r.history["impulse1"].sum() + r.history["impulse2"].sum())
+
+    assert last_period_impacts(n) > 0
+    assert last_period_impacts(n + 1) == 0
     # proven at the start: nothing to run
     assert mod.last_impact(dataclasses.replace(params, g1=1e6, g2=1e6), settings, 0) == 0
     rows = [

@@ -268,6 +268,7 @@ def _with_cells(
     res.cells = chain.n_cells
     # the chain's impact observables are not reported (its kernels sum them over the cells)
     res.contact_fraction = res.contact_fraction_se = res.impact_velocity = None
+    res.impacts_per_period_se = res.impact_velocity_se = None
     res.impact_energy = res.impact_energy_se = res.impact_energy_share = None
     lin = cell_linear_db(chain)
     res.cell_transmittance_linear_db = lin

@@ -154,6 +154,14 @@ def _cmd_point(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plus_minus(ses: Any, scale: float = 1.0) -> tuple[str, str]:
+    """Each stop's standard error as ' ± SE' (blank where there is none)."""
+    if ses is None:
+        return "", ""
+    a, b = ("" if v is None else f" ± {scale * v:.2g}" for v in ses)
+    return a, b
+
+
 def _print_point(result: Any) -> None:
     """The summary of one point (a unit cell's, or a chain's last cell's) as ``point`` prints
     it."""
@@ -176,24 +184,27 @@ def _print_point(result: Any) -> None:
         span = f"over {result.response_period} periods" if result.response_period > 1 else ""
         print(f"Floquet multiplier  |μ| = {result.floquet_multiplier:.4g} {span}".rstrip())
     i1, i2 = result.impacts_per_period
-    print(f"impacts / period    stop 1: {i1:g}, stop 2: {i2:g}")
+    pm = _plus_minus(result.impacts_per_period_se)
+    print(f"impacts / period    stop 1: {i1:g}{pm[0]}, stop 2: {i2:g}{pm[1]}")
     if result.contact_fraction is not None:
         c1, c2 = result.contact_fraction
-        ses = result.contact_fraction_se
-        pm = ("", "") if ses is None else tuple(f" ± {100 * v:.2g}" for v in ses)
+        pm = _plus_minus(result.contact_fraction_se, 100.0)
         print(f"time on the stops   stop 1: {100 * c1:.3g}{pm[0]} %, stop 2: {100 * c2:.3g}{pm[1]} "
               "% of the period")  # fmt: skip
     if result.impact_velocity is not None and any(v is not None for v in result.impact_velocity):
         v1, v2 = ("-" if v is None else f"{v:.4g}" for v in result.impact_velocity)
-        print(f"impact velocity     stop 1: {v1}, stop 2: {v2} (mean approach, B per τ)")
+        pm = _plus_minus(result.impact_velocity_se)
+        print(f"impact velocity     stop 1: {v1}{pm[0]}, stop 2: {v2}{pm[1]} (mean approach, "
+              "B per τ)")  # fmt: skip
     if result.impact_energy is not None:
         e1, e2 = result.impact_energy
-        ses = result.impact_energy_se
-        pm = ("", "") if ses is None else tuple(f" ± {v:.2g}" for v in ses)
+        pm = _plus_minus(result.impact_energy_se)
         share = result.impact_energy_share
         of = "" if share is None else f" ({100 * share:.3g} % of all dissipated)"
         print(f"impact energy       stop 1: {e1:.4g}{pm[0]}, stop 2: {e2:.4g}{pm[1]} per period"
               + of)  # fmt: skip
+    if result.peak_impulse is not None and result.peak_impulse > 0:
+        print(f"largest impulse     {result.peak_impulse:.4g}")
     print(f"steps               {result.steps} ({result.contact_steps} with contact)")
     print(f"wall time           {result.wall_s * 1e3:.2f} ms ({result.method})")
 

@@ -90,11 +90,11 @@ class Outputs(StrictModel):
     transmittance: ``transmittance_db``, ``transmittance_db_se``, ``amplitude``;
     effective_mass: ``theta_eff`` (the effective mass), ``theta_eff_slope`` (the phase-portrait
     ratio θ_ps); response: ``outcome``, ``may_be_transient``, ``impacting_periods``,
-    ``response_period``, ``impacts_per_period``, ``contact_fraction`` (and its standard
-    error), ``impact_velocity``, ``impact_energy`` (and its standard error),
-    ``impact_energy_share``, ``floquet_multiplier``, ``periods``,
-    ``steps``; contact (off by default: diagnostics that cost storage, not insight):
-    ``peak_impulse``, ``contact_steps``, ``coarse_steps``, ``steady_period``.
+    ``response_period``, ``impacts_per_period``, ``contact_fraction``, ``impact_velocity``,
+    ``impact_energy`` (each with its standard error), ``impact_energy_share``,
+    ``peak_impulse``, ``floquet_multiplier``, ``periods``, ``steps``; contact (off by default:
+    diagnostics that cost storage, not insight): ``contact_steps``, ``coarse_steps``,
+    ``steady_period``.
     """
 
     # Strict: "yes", "true" or 1 are not booleans (JSON and YAML have true and false).

@@ -235,7 +235,15 @@ VARIABLES: dict[str, Variable] = {
         "0 = irregular or unsettled)",
     ),
     "impacts_per_period": Variable(
-        "response", "float", "1", "impacts per excitation period at stop"
+        "response", "float", "1",
+        "contact episodes begun at stop per excitation period (a rebound sequence is one): "
+        "exact over the orbit of a periodic point, the mean over the stationary span's "
+        "windows at an irregular or unsettled one",
+    ),
+    "impacts_per_period_se": Variable(
+        "response", "float", "1",
+        "standard error of impacts_per_period at an irregular or unsettled point (the windows "
+        "as batches); missing elsewhere",
     ),
     "contact_fraction": Variable(
         "response", "float", "1",
@@ -253,6 +261,12 @@ VARIABLES: dict[str, Variable] = {
         "response", "float", "1",
         "mean velocity of the tip towards stop at the impacts counted there (in units of B "
         "per unit tau); missing where the stop had none",
+    ),
+    "impact_velocity_se": Variable(
+        "response", "float", "1",
+        "standard error of impact_velocity at an irregular or unsettled point (the ratio "
+        "estimator's, the windows as batches); missing elsewhere and where fewer than two "
+        "windows had impacts at stop",
     ),
     "impact_energy": Variable(
         "response", "float", "1",
@@ -284,7 +298,10 @@ VARIABLES: dict[str, Variable] = {
     "periods": Variable("response", "int", "1", "excitation periods simulated", mask=False),
     "steps": Variable("response", "int", "1", "time steps taken", mask=False),
     "peak_impulse": Variable(
-        "contact", "float", "1", "largest contact impulse (non-dimensional)"
+        "response", "float", "1",
+        "largest contact impulse in a period (non-dimensional; time stepping: the largest "
+        "step impulse): over the orbit of a periodic point, the stationary span's windows at "
+        "an irregular or unsettled one",
     ),
     "contact_steps": Variable(
         "contact", "int", "1", "time steps that needed a contact solve", mask=False
@@ -360,9 +377,11 @@ CHAIN_VARIABLES: dict[str, Variable] = {
 #: Result variables with one value per stop (a trailing ``stop`` dimension of 2).
 STOP_VARIABLES: tuple[str, ...] = (
     "impacts_per_period",
+    "impacts_per_period_se",
     "contact_fraction",
     "contact_fraction_se",
     "impact_velocity",
+    "impact_velocity_se",
     "impact_energy",
     "impact_energy_se",
 )

@@ -12,6 +12,7 @@ import pytest
 from worker.model import CellParams
 from worker.model.chain import ChainParams
 from worker.simulate import SolverSettings, simulate_chain_point, simulate_chunk, simulate_point
+from worker.solvers.engine.point import _approach_se
 
 # periodic with every method: one impact a period at each stop, stuck after each
 CELL = CellParams(theta=0.3, sigma=0.05, gamma_s=1.0, gamma_r=1.3, g1=0.1, g2=0.1, modes=3)
@@ -67,3 +68,34 @@ def test_an_irregular_point_has_error_bars_and_a_failed_one_nothing():
 def test_chains_do_not_report_them_yet():
     r = simulate_chain_point(ChainParams(CELL, 2), SolverSettings(method="euler"))
     assert r.contact_fraction is None and r.impact_velocity is None
+
+
+def test_irregular_impact_observables_are_window_means_with_error_bars():
+    """At an irregular point the impacts per period, time on the stops, approach velocity and
+    impact energy are means over the stationary span's windows, each with a standard error
+    that is positive and small against the mean."""
+    r = simulate_point(dataclasses.replace(CELL, modes=5), SolverSettings())
+    assert r.outcome in ("irregular", "unsettled")
+    for mean, se in ((r.impacts_per_period, r.impacts_per_period_se),
+                     (r.contact_fraction, r.contact_fraction_se),
+                     (r.impact_velocity, r.impact_velocity_se),
+                     (r.impact_energy, r.impact_energy_se)):  # fmt: skip
+        for m, s in zip(mean, se, strict=True):
+            assert m > 0 and 0 < s < 0.2 * m
+    periodic = simulate_point(CELL, SolverSettings())
+    assert periodic.outcome == "periodic"
+    assert periodic.impacts_per_period_se is None and periodic.impact_velocity_se is None
+
+
+def test_the_approach_velocitys_error_bar_is_the_ratio_estimators():
+    """Σv/Σn over windows: no spread when every window has the same mean velocity; else the
+    ratio estimator's standard error, here by hand; none for a stop with impacts in only one
+    window."""
+    n = np.array([[2.0, 1.0], [4.0, 0.0], [2.0, 0.0]])
+    same = _approach_se(0.5 * n, n)
+    assert same[0] == 0.0 and same[1] is None
+    v = np.array([[1.0, 0.3], [2.4, 0.0], [0.6, 0.0]])
+    r = 4.0 / 8.0  # Σv / Σn at stop 1
+    resid = v[:, 0] - r * n[:, 0]  # 0, 0.4, -0.4
+    expected = np.sqrt(resid @ resid / (3 * 2)) / (8.0 / 3)
+    assert _approach_se(v, n)[0] == pytest.approx(expected, rel=1e-15)

@@ -188,9 +188,11 @@ _NOT_IN_RECORD = ("history", "final_state")
 #: A result's fields with one value per stop (stop 1, stop 2): lists in a record.
 _PER_STOP = (
     "impacts_per_period",
+    "impacts_per_period_se",
     "contact_fraction",
     "contact_fraction_se",
     "impact_velocity",
+    "impact_velocity_se",
     "impact_energy",
     "impact_energy_se",
 )
@@ -233,8 +235,11 @@ class PointResult:
     (the event method: stuck on it; time stepping: the steps whose impulse holds it there),
     exact over the orbit of a periodic point, 0 at a linear one, and at an irregular or
     unsettled point the mean over the stationary span's windows with its
-    standard error ``contact_fraction_se`` (windows as batches). ``impact_velocity`` is the
-    mean approach velocity of the impacts counted at each stop (``None`` where a stop had none).
+    standard error ``contact_fraction_se`` (windows as batches). ``impacts_per_period`` is
+    likewise exact over the orbit or the windows' mean, with ``impacts_per_period_se``.
+    ``impact_velocity`` is the mean approach velocity of the impacts counted at each stop
+    (``None`` where a stop had none), with ``impact_velocity_se`` at an irregular or unsettled
+    point (the ratio estimator's, windows as batches).
     ``impact_energy`` is the energy the impulses at each stop take per excitation period,
     Σ ½(v⁻² − v⁺²)/G (exact over the orbit, 0 at a linear point, the windows' mean with
     standard error ``impact_energy_se`` at an irregular or unsettled one), and
@@ -271,9 +276,11 @@ class PointResult:
     impact_effect_db: float | None = None
     may_be_transient: bool = False
     impacting_periods: int | None = None
+    impacts_per_period_se: tuple[float, float] | None = None
     contact_fraction: tuple[float, float] | None = None
     contact_fraction_se: tuple[float, float] | None = None
     impact_velocity: tuple[float | None, float | None] | None = None
+    impact_velocity_se: tuple[float | None, float | None] | None = None
     impact_energy: tuple[float, float] | None = None
     impact_energy_se: tuple[float, float] | None = None
     impact_energy_share: float | None = None

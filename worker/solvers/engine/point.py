@@ -198,6 +198,35 @@ def impact_energy_share(sys_: System, f_scale: float, energy: float, s_re: float
     return float(energy / wf)
 
 
+def _window_mean(a: np.ndarray) -> tuple[tuple[float, float], tuple[float, float] | None]:
+    """The mean of per-window values (rows: windows, columns: the two stops) and its standard
+    error, the windows as batches (None from one window)."""
+    mean = (float(a[:, 0].mean()), float(a[:, 1].mean()))
+    if len(a) < 2:
+        return mean, None
+    se = a.std(axis=0, ddof=1) / math.sqrt(len(a))
+    return mean, (float(se[0]), float(se[1]))
+
+
+def _approach_se(v: np.ndarray, n: np.ndarray) -> tuple[float | None, float | None] | None:
+    """The standard error of each stop's mean approach velocity ``Σv/Σn`` over windows with
+    sums ``v`` and impact counts ``n`` (the ratio estimator's, windows as batches): None from
+    one window, and for a stop with impacts in fewer than two windows."""
+    if len(v) < 2:
+        return None
+    out: list[float | None] = []
+    for k in range(2):
+        total = float(n[:, k].sum())
+        if np.count_nonzero(n[:, k]) < 2:
+            out.append(None)
+            continue
+        r = float(v[:, k].sum()) / total
+        resid = v[:, k] - r * n[:, k]
+        m = len(v)
+        out.append(float(math.sqrt((resid @ resid) / (m * (m - 1))) / (total / m)))
+    return out[0], out[1]
+
+
 def _approach(v1: float, v2: float, n1: float, n2: float) -> tuple[float | None, float | None]:
     """The mean approach velocity of the impacts at each stop (sums over counts; None where a
     stop had none)."""
@@ -219,17 +248,15 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
     # the windows that lie in the stationary span, whole (θ_eff, the peak impulse)
     span = range(min(-(-(win.first + st.start) // win.window), len(win) - 1), len(win))
     h = sum((win.harm[i] for i in span if win.measured[i]), np.zeros(6))
-    imp = win.impacts[-1]
-    # the time on each stop per window of the stationary span: its mean and standard error
-    # (windows as batches); the approach velocity over all the span's impacts
+    # per window of the stationary span (windows as batches): the impacts per period, the time
+    # on each stop and the impacts' energy, their means and standard errors; the approach
+    # velocity over all the span's impacts
     T = 2.0 * math.pi / p.gamma_r
-    ct = np.array([win.contact[i][:2] for i in span]) / (win.window * T)
-    vs = sum((win.contact[i] for i in span), np.zeros(6))
-    ni = sum((np.array(win.impacts[i]) for i in span), np.zeros(2))
-    se = ct.std(axis=0, ddof=1) / math.sqrt(len(ct)) if len(ct) > 1 else None
-    # the impacts' energy per period, per window of the span: its mean and standard error
-    en = np.array([win.contact[i][4:6] for i in span]) / win.window
-    en_se = en.std(axis=0, ddof=1) / math.sqrt(len(en)) if len(en) > 1 else None
+    ni = np.array([win.impacts[i] for i in span], dtype=float)
+    imp, imp_se = _window_mean(ni / win.window)
+    ct, ct_se = _window_mean(np.array([win.contact[i][:2] for i in span]) / (win.window * T))
+    en, en_se = _window_mean(np.array([win.contact[i][4:6] for i in span]) / win.window)
+    vs = np.array([win.contact[i][2:4] for i in span])
     # the share from the span's measured windows: their energy over their forcing work
     e_meas = sum(float(win.contact[i][4] + win.contact[i][5]) for i in span if win.measured[i])
     return PointResult(
@@ -238,12 +265,11 @@ def _statistics_result(eng: _Engine, outcome: str, reason: str, common: dict,
         theta_eff=theta_eff_harmonic(complex(h[0], h[1]), complex(h[2], h[3]), kappa, theta),
         theta_eff_slope=theta_eff_slope(h[4], h[5], kappa, theta),
         response_period=0,
-        impacts_per_period=(float(imp[0] / win.window), float(imp[1] / win.window)),
-        contact_fraction=(float(ct[:, 0].mean()), float(ct[:, 1].mean())),
-        contact_fraction_se=None if se is None else (float(se[0]), float(se[1])),
-        impact_velocity=_approach(vs[2], vs[3], ni[0], ni[1]),
-        impact_energy=(float(en[:, 0].mean()), float(en[:, 1].mean())),
-        impact_energy_se=None if en_se is None else (float(en_se[0]), float(en_se[1])),
+        impacts_per_period=imp, impacts_per_period_se=imp_se,
+        contact_fraction=ct, contact_fraction_se=ct_se,
+        impact_velocity=_approach(*vs.sum(axis=0), *ni.sum(axis=0)),
+        impact_velocity_se=_approach_se(vs, ni),
+        impact_energy=en, impact_energy_se=en_se,
         impact_energy_share=impact_energy_share(eng.sys, eng.run.f_scale, e_meas, h[0], h[1]),
         peak_impulse=float(max(win.peak[i] for i in span)), floquet_multiplier=None,
         wall_s=0.0, reason=reason, method=eng.s.method, **common,
