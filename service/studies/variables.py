@@ -26,7 +26,7 @@ import numpy as np
 
 from worker.model import CellParams
 from worker.physical import PhysicalCell
-from worker.solvers.settings import OUTCOMES
+from worker.solvers.settings import OUTCOMES, PER_STOP
 
 __all__ = [
     "AXES",
@@ -375,16 +375,7 @@ CHAIN_VARIABLES: dict[str, Variable] = {
 
 
 #: Result variables with one value per stop (a trailing ``stop`` dimension of 2).
-STOP_VARIABLES: tuple[str, ...] = (
-    "impacts_per_period",
-    "impacts_per_period_se",
-    "contact_fraction",
-    "contact_fraction_se",
-    "impact_velocity",
-    "impact_velocity_se",
-    "impact_energy",
-    "impact_energy_se",
-)
+STOP_VARIABLES: tuple[str, ...] = PER_STOP
 
 
 # --------------------------------------------------------------------------- stored values

@@ -14,6 +14,7 @@ __all__ = [
     "CHAIN_FIELDS",
     "DEFAULT_METHOD",
     "LCP_SOLVERS",
+    "PER_STOP",
     "MAX_EVENTS_PER_PERIOD",
     "MAX_STEPS_PER_PERIOD",
     "METHODS",
@@ -185,8 +186,9 @@ class SolverSettings:
 
 # PointResult fields kept out of records (arrays: records stay JSON-able and column-able)
 _NOT_IN_RECORD = ("history", "final_state")
-#: A result's fields with one value per stop (stop 1, stop 2): lists in a record.
-_PER_STOP = (
+#: A result's fields with one value per stop (stop 1, stop 2): lists in a record, and the
+#: study variables along ``stop`` (``service.studies.variables.STOP_VARIABLES``).
+PER_STOP = (
     "impacts_per_period",
     "impacts_per_period_se",
     "contact_fraction",
@@ -307,7 +309,7 @@ class PointResult:
         if self.cells is None:
             for name in CHAIN_FIELDS:
                 del out[name]  # a unit cell's record is what it always was
-        for name in _PER_STOP:
+        for name in PER_STOP:
             if out[name] is not None:
                 out[name] = list(out[name])
         out["failed"] = self.failed
