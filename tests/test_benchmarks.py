@@ -241,9 +241,8 @@ def test_point_engine_finds_the_last_impact_before_a_linear_proof() -> None:
     assert r.outcome == "linear" and r.periods > 1
     last = mod.last_impact(params, settings, r.periods)
     assert 1 <= last <= r.periods  # no impact after the proof
-    # the same period seen in the kernel's history of a run's last period:
-    # impacts in the last period of a run that long, none in the last period of one a period
-    # longer
+    # the same period seen in the history of a run's last period: impacts in the last period
+    # of a run that long, none in the last period of one a period longer
     quiet = dataclasses.replace(settings, early_stop=False, linear_tail=False, window=1)
     n = max(last, 2)
 

